@@ -1,0 +1,1 @@
+"""Subcommands of the ``kfusion`` command line; one module each (see :mod:`kfusion.cli`)."""

@@ -1,0 +1,52 @@
+"""``kfusion check DIR``: validate a recording folder and summarise it."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from kfusion.recording import Recording, occlusion_durations, read_recording
+
+NAME = "check"
+HELP = "Validate a recording folder and print a summary (duration, rates, occlusions)."
+ORDER = 10
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("folder", metavar="DIR", help="recording folder (imu.csv, mocap.csv, "
+                        "recording.yaml)")
+    parser.add_argument("--zeros-occluded", action="store_true",
+                        help="read a mocap position of exactly (0, 0, 0) as occluded "
+                        "(some exporters write zeros for a lost rigid body); default: off")
+
+
+def summarise(recording: Recording) -> str:
+    """Multi-line human-readable summary of a valid recording."""
+    imu, mocap = recording.imu, recording.mocap
+    start = min(imu.t[0], mocap.t[0])
+    end = max(imu.t[-1], mocap.t[-1])
+    imu_rate = (len(imu) - 1) / (imu.t[-1] - imu.t[0]) if len(imu) > 1 else float("nan")
+    mocap_rate = (len(mocap) - 1) / (mocap.t[-1] - mocap.t[0]) if len(mocap) > 1 else float("nan")
+    durations = occlusion_durations(mocap.t, mocap.visible)
+    lines = [
+        f"recording: {recording.info.name or recording.source}",
+        f"duration: {end - start:.3f} s",
+        f"imu: {len(imu)} samples at {imu_rate:.1f} Hz",
+        f"mocap: {len(mocap)} frames at {mocap_rate:.1f} Hz, "
+        f"{int((~mocap.visible).sum())} occluded",
+        f"occlusions: {len(durations)}",
+    ]
+    if len(durations):
+        lines.append(
+            f"occlusion length: min {durations.min():.3f} s, median {np.median(durations):.3f} s,"
+            f" max {durations.max():.3f} s"
+        )
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    recording = read_recording(args.folder, zero_position_means_occluded=args.zeros_occluded)
+    print(f"ok: {args.folder}")
+    print(summarise(recording))
+    return 0

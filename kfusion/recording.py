@@ -1,0 +1,513 @@
+"""The recording folder: typed objects, reader, writer and validation.
+
+A recording is a folder holding
+
+* ``imu.csv``: ``t, ax, ay, az, gx, gy, gz`` (s, m/s^2 specific force, rad/s; IMU frame);
+* ``mocap.csv``: ``t, x, y, z, qw, qx, qy, qz`` (s, m in the global frame, unit quaternion
+  body -> global). An occluded frame has every cell but ``t`` empty (or NaN);
+* ``recording.yaml``: ``imu_to_body: [w, x, y, z]`` (IMU -> body rotation),
+  ``gravity: [gx, gy, gz]`` (m/s^2, global frame), optional ``name``, ``imu`` (profile name)
+  and ``lever_arm`` (m, body frame).
+
+Other files in the folder (``truth.csv`` from the simulator, say) are ignored.
+
+Occlusions are explicit: :attr:`MocapFrames.position` and :attr:`MocapFrames.quaternion` are NaN on
+occluded rows, never zeros. Some exporters write ``0, 0, 0`` for a lost rigid body; pass
+``zero_position_means_occluded=True`` to :func:`read_recording` to read those rows as occluded.
+Without it, a position of exactly (0, 0, 0) is a real position.
+
+Every validation failure raises :class:`RecordingError` naming the file, row and column.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+from numpy.typing import NDArray
+
+from kfusion.conventions import (
+    GRAVITY_MAGNITUDE_RANGE,
+    IMU_COLUMNS,
+    MOCAP_COLUMNS,
+    QUATERNION_NORM_TOLERANCE,
+)
+
+IMU_FILE = "imu.csv"
+MOCAP_FILE = "mocap.csv"
+META_FILE = "recording.yaml"
+TRUTH_FILE = "truth.csv"
+
+MAX_PLAUSIBLE_POSITION = 10.0
+"""m: a mocap coordinate beyond this looks like millimetres."""
+G_UNIT_MAGNITUDE_RANGE = (0.5, 2.0)
+"""Median accelerometer magnitude in this range looks like g units, not m/s^2."""
+PLAUSIBLE_ACCELEROMETER_MEDIAN = (4.0, 30.0)
+"""m/s^2: the median specific-force magnitude of a worn IMU is near 9.81."""
+MAX_PLAUSIBLE_ANGULAR_RATE = 40.0
+"""rad/s: a 99th-percentile gyroscope magnitude above this looks like deg/s."""
+
+
+class RecordingError(ValueError):
+    """A recording file is malformed. ``str()`` is one line naming file, row, column or key.
+
+    Attributes:
+        file: file name (or path) at fault.
+        row: 1-based data row (the header is not counted), or None.
+        column: column name, or None.
+        key: YAML key path, or None.
+        reason: what is wrong, stating what was expected and what was found.
+    """
+
+    def __init__(
+        self,
+        file: str | Path,
+        reason: str,
+        *,
+        row: int | None = None,
+        column: str | None = None,
+        key: str | None = None,
+    ) -> None:
+        self.file = str(file)
+        self.row = row
+        self.column = column
+        self.key = key
+        self.reason = reason
+        where = [self.file]
+        if row is not None:
+            where.append(f"row {row} (line {row + 1})")
+        if column is not None:
+            where.append(f"column '{column}'")
+        if key is not None:
+            where.append(f"key '{key}'")
+        super().__init__(", ".join(where) + ": " + reason)
+
+
+def _frozen(array: NDArray) -> NDArray:
+    array = np.array(array, dtype=float, copy=True)
+    array.flags.writeable = False
+    return array
+
+
+@dataclass(frozen=True)
+class ImuSamples:
+    """IMU samples, read-only arrays.
+
+    Attributes:
+        t: (n,) sample times, s, strictly increasing.
+        accelerometer: (n, 3) specific force, m/s^2, IMU frame.
+        gyroscope: (n, 3) angular rate, rad/s, IMU frame.
+    """
+
+    t: NDArray[np.float64]
+    accelerometer: NDArray[np.float64]
+    gyroscope: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        t = _frozen(self.t)
+        accelerometer = _frozen(self.accelerometer)
+        gyroscope = _frozen(self.gyroscope)
+        n = t.shape[0] if t.ndim == 1 else -1
+        for name, value, shape in (("accelerometer", accelerometer, (n, 3)),
+                                   ("gyroscope", gyroscope, (n, 3))):
+            if t.ndim != 1 or value.shape != shape:
+                raise ValueError(f"ImuSamples.{name}: expected shape (n, 3) with t of shape (n,),"
+                                 f" got t {t.shape} and {name} {value.shape}")
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "accelerometer", accelerometer)
+        object.__setattr__(self, "gyroscope", gyroscope)
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+@dataclass(frozen=True)
+class MocapFrames:
+    """Mocap rigid-body frames, read-only arrays; occluded rows are NaN in position and quaternion.
+
+    Attributes:
+        t: (m,) frame times, s, strictly increasing.
+        position: (m, 3) rigid-body position, m, global frame; NaN where occluded.
+        quaternion: (m, 4) body -> global, [w, x, y, z]; NaN where occluded.
+    """
+
+    t: NDArray[np.float64]
+    position: NDArray[np.float64]
+    quaternion: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        t = _frozen(self.t)
+        position = _frozen(self.position)
+        quaternion = _frozen(self.quaternion)
+        n = t.shape[0] if t.ndim == 1 else -1
+        if t.ndim != 1 or position.shape != (n, 3) or quaternion.shape != (n, 4):
+            raise ValueError(
+                "MocapFrames: expected t (m,), position (m, 3), quaternion (m, 4); got "
+                f"{t.shape}, {position.shape}, {quaternion.shape}"
+            )
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "position", position)
+        object.__setattr__(self, "quaternion", quaternion)
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def visible(self) -> NDArray[np.bool_]:
+        """(m,) True where the frame holds a position and an orientation."""
+        return ~(np.isnan(self.position).any(axis=1) | np.isnan(self.quaternion).any(axis=1))
+
+
+@dataclass(frozen=True)
+class RecordingInfo:
+    """Contents of ``recording.yaml``.
+
+    Attributes:
+        imu_to_body: (4,) rotation IMU -> body, [w, x, y, z].
+        gravity: (3,) gravity in the global frame, m/s^2.
+        name: optional recording name.
+        imu: optional IMU profile name (see :mod:`kfusion.profiles`).
+        lever_arm: optional (3,) IMU position in the body frame relative to the rigid-body origin, m.
+    """
+
+    imu_to_body: NDArray[np.float64]
+    gravity: NDArray[np.float64]
+    name: str | None = None
+    imu: str | None = None
+    lever_arm: NDArray[np.float64] | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "imu_to_body", _frozen(self.imu_to_body))
+        object.__setattr__(self, "gravity", _frozen(self.gravity))
+        if self.lever_arm is not None:
+            object.__setattr__(self, "lever_arm", _frozen(self.lever_arm))
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One recording: IMU samples, mocap frames and their metadata."""
+
+    imu: ImuSamples
+    mocap: MocapFrames
+    info: RecordingInfo
+    source: str | None = field(default=None, compare=False)
+
+    def with_mocap(self, mocap: MocapFrames) -> Recording:
+        """A copy with other mocap frames (for example with artificial gaps cut)."""
+        return dataclasses.replace(self, mocap=mocap)
+
+
+# --------------------------------------------------------------------------------------------
+# Pure helpers
+# --------------------------------------------------------------------------------------------
+
+
+def occlusion_runs(visible: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """Index ranges ``[start, stop)`` of consecutive occluded frames (``visible`` False)."""
+    hidden = ~np.asarray(visible, dtype=bool)
+    padded = np.concatenate([[False], hidden, [False]])
+    edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
+    return [(int(start), int(stop)) for start, stop in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def occlusion_durations(t: NDArray[np.float64], visible: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Duration of each occlusion, s: from the last visible frame before to the first after.
+
+    A gap at the start or end of the recording is measured to the recording's first or last frame.
+    """
+    t = np.asarray(t, dtype=float)
+    durations = []
+    for start, stop in occlusion_runs(visible):
+        before = t[start - 1] if start > 0 else t[0]
+        after = t[stop] if stop < len(t) else t[-1]
+        durations.append(after - before)
+    return np.asarray(durations, dtype=float)
+
+
+# --------------------------------------------------------------------------------------------
+# Reading
+# --------------------------------------------------------------------------------------------
+
+
+def _read_table(path: Path, columns: Sequence[str]) -> tuple[pd.DataFrame, NDArray[np.bool_]]:
+    """Read a CSV as floats; return the frame and a mask of cells that were empty in the file."""
+    if not path.is_file():
+        raise RecordingError(path.name, f"file not found in {path.parent}")
+    try:
+        raw = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as error:
+        raise RecordingError(path.name, f"cannot be parsed as CSV ({error})") from None
+    raw.columns = [str(c).strip() for c in raw.columns]
+    missing = [c for c in columns if c not in raw.columns]
+    if missing:
+        raise RecordingError(
+            path.name,
+            f"missing column(s) {missing}; expected {list(columns)}, found {list(raw.columns)}",
+            column=missing[0],
+        )
+    raw = raw[list(columns)]
+    stripped = raw.apply(lambda s: s.str.strip())
+    empty = stripped.eq("").to_numpy() | stripped.apply(lambda s: s.str.lower().eq("nan")).to_numpy()
+    numeric = stripped.apply(pd.to_numeric, errors="coerce")
+    bad = numeric.isna().to_numpy() & ~empty
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise RecordingError(
+            path.name,
+            f"non-numeric value {raw.iat[row, col]!r}; expected a number",
+            row=int(row) + 1,
+            column=columns[col],
+        )
+    return numeric.astype(float), empty
+
+
+def _check_time(path_name: str, t: NDArray[np.float64], empty: NDArray[np.bool_]) -> None:
+    if empty.any():
+        row = int(np.flatnonzero(empty)[0])
+        raise RecordingError(path_name, "empty timestamp; expected a time in s", row=row + 1,
+                             column="t")
+    if not np.isfinite(t).all():
+        row = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise RecordingError(path_name, f"non-finite timestamp {t[row]}", row=row + 1, column="t")
+    steps = np.diff(t)
+    if (steps <= 0).any():
+        row = int(np.flatnonzero(steps <= 0)[0]) + 1
+        kind = "duplicated" if steps[row - 1] == 0 else "earlier than the previous row"
+        raise RecordingError(
+            path_name,
+            f"timestamp {t[row]!r} is {kind} ({t[row - 1]!r}); expected strictly increasing times",
+            row=row + 1,
+            column="t",
+        )
+
+
+def read_imu(path: str | Path) -> ImuSamples:
+    """Read and validate ``imu.csv`` (see module docstring). Raises :class:`RecordingError`."""
+    path = Path(path)
+    table, empty = _read_table(path, IMU_COLUMNS)
+    values = table.to_numpy()
+    _check_time(path.name, values[:, 0], empty[:, 0])
+    finite = np.isfinite(values) & ~empty
+    if not finite.all():
+        row, col = np.argwhere(~finite)[0]
+        raise RecordingError(
+            path.name,
+            f"non-finite or empty IMU value {table.iat[row, col]!r}; IMU samples must be finite",
+            row=int(row) + 1,
+            column=IMU_COLUMNS[col],
+        )
+    samples = ImuSamples(t=values[:, 0], accelerometer=values[:, 1:4], gyroscope=values[:, 4:7])
+    _check_imu_units(path.name, samples)
+    return samples
+
+
+def _check_imu_units(file: str, samples: ImuSamples) -> None:
+    if len(samples) == 0:
+        raise RecordingError(file, "no samples")
+    magnitude = float(np.median(np.linalg.norm(samples.accelerometer, axis=1)))
+    low, high = G_UNIT_MAGNITUDE_RANGE
+    if low <= magnitude <= high:
+        raise RecordingError(
+            file,
+            f"median accelerometer magnitude is {magnitude:.3g}, which looks like g; expected "
+            "m/s^2 (about 9.81 at rest): multiply by 9.80665",
+            column="ax",
+        )
+    low, high = PLAUSIBLE_ACCELEROMETER_MEDIAN
+    if not low <= magnitude <= high:
+        raise RecordingError(
+            file,
+            f"median accelerometer magnitude is {magnitude:.3g} m/s^2; expected about 9.81 m/s^2 "
+            "for a worn IMU (wrong unit or not specific force?)",
+            column="ax",
+        )
+    rate = float(np.percentile(np.linalg.norm(samples.gyroscope, axis=1), 99))
+    if rate > MAX_PLAUSIBLE_ANGULAR_RATE:
+        raise RecordingError(
+            file,
+            f"99th-percentile angular rate is {rate:.3g}, which looks like deg/s; expected rad/s",
+            column="gx",
+        )
+
+
+def read_mocap(path: str | Path, *, zero_position_means_occluded: bool = False) -> MocapFrames:
+    """Read and validate ``mocap.csv``. Occluded rows become NaN. Raises :class:`RecordingError`.
+
+    A row is occluded when all of x..qz are empty or NaN, or, with
+    ``zero_position_means_occluded``, when x = y = z = 0 exactly. A row with only some cells empty
+    is an error.
+    """
+    path = Path(path)
+    table, empty = _read_table(path, MOCAP_COLUMNS)
+    values = table.to_numpy()
+    _check_time(path.name, values[:, 0], empty[:, 0])
+    cells = values[:, 1:]
+    missing = empty[:, 1:] | np.isnan(cells)
+    if np.isinf(cells).any():
+        row, col = np.argwhere(np.isinf(cells))[0]
+        raise RecordingError(path.name, "infinite value; expected a number or an empty cell "
+                             "(occluded)", row=int(row) + 1, column=MOCAP_COLUMNS[col + 1])
+    partial = missing.any(axis=1) & ~missing.all(axis=1)
+    if partial.any():
+        row = int(np.flatnonzero(partial)[0])
+        col = int(np.flatnonzero(missing[row])[0])
+        raise RecordingError(
+            path.name,
+            "row is partly empty; expected all of x..qz filled, or all empty for an occluded frame",
+            row=row + 1,
+            column=MOCAP_COLUMNS[col + 1],
+        )
+    occluded = missing.all(axis=1)
+    if zero_position_means_occluded:
+        occluded |= ~occluded & (cells[:, :3] == 0).all(axis=1)
+    cells = np.where(occluded[:, None], np.nan, cells)
+    position, quaternion = cells[:, :3], cells[:, 3:]
+    _check_mocap_values(path.name, position, quaternion, ~occluded)
+    return MocapFrames(t=values[:, 0], position=position, quaternion=quaternion)
+
+
+def _check_mocap_values(file: str, position: NDArray, quaternion: NDArray,
+                        visible: NDArray[np.bool_]) -> None:
+    norm_error = np.abs(np.linalg.norm(quaternion, axis=1) - 1.0)
+    bad = visible & (norm_error > QUATERNION_NORM_TOLERANCE)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise RecordingError(
+            file,
+            f"quaternion norm is {np.linalg.norm(quaternion[row]):.6g}; expected a unit "
+            f"quaternion [w, x, y, z] (|norm - 1| <= {QUATERNION_NORM_TOLERANCE})",
+            row=row + 1,
+            column="qw",
+        )
+    far = visible & (np.abs(position) > MAX_PLAUSIBLE_POSITION).any(axis=1)
+    if far.any():
+        row = int(np.flatnonzero(far)[0])
+        col = int(np.argmax(np.abs(position[row])))
+        raise RecordingError(
+            file,
+            f"position {position[row, col]:.6g} looks like mm; expected m "
+            f"(|coordinate| <= {MAX_PLAUSIBLE_POSITION:g} m): divide by 1000",
+            row=row + 1,
+            column="xyz"[col],
+        )
+
+
+def _vector(file: str, data: dict, key: str, length: int, required: bool = True
+            ) -> NDArray[np.float64] | None:
+    if key not in data or data[key] is None:
+        if required:
+            raise RecordingError(file, f"missing; expected a list of {length} numbers", key=key)
+        return None
+    value = data[key]
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise RecordingError(file, f"expected a list of {length} numbers, got {value!r}",
+                             key=key) from None
+    if array.shape != (length,) or not np.isfinite(array).all():
+        raise RecordingError(file, f"expected a list of {length} finite numbers, got {value!r}",
+                             key=key)
+    return array
+
+
+KNOWN_INFO_KEYS = ("imu_to_body", "gravity", "name", "imu", "lever_arm")
+
+
+def parse_info(data: object, file: str = META_FILE) -> RecordingInfo:
+    """Validate the mapping loaded from ``recording.yaml`` and build a :class:`RecordingInfo`."""
+    if not isinstance(data, dict):
+        raise RecordingError(file, f"expected a mapping with keys {list(KNOWN_INFO_KEYS)}, "
+                             f"got {type(data).__name__}")
+    unknown = sorted(set(data) - set(KNOWN_INFO_KEYS))
+    if unknown:
+        raise RecordingError(file, f"unknown key; expected only {list(KNOWN_INFO_KEYS)}",
+                             key=str(unknown[0]))
+    imu_to_body = _vector(file, data, "imu_to_body", 4)
+    assert imu_to_body is not None
+    if abs(np.linalg.norm(imu_to_body) - 1.0) > QUATERNION_NORM_TOLERANCE:
+        raise RecordingError(file, f"quaternion norm is {np.linalg.norm(imu_to_body):.6g}; "
+                             "expected a unit quaternion [w, x, y, z]", key="imu_to_body")
+    gravity = _vector(file, data, "gravity", 3)
+    assert gravity is not None
+    low, high = GRAVITY_MAGNITUDE_RANGE
+    if not low <= np.linalg.norm(gravity) <= high:
+        raise RecordingError(file, f"gravity length is {np.linalg.norm(gravity):.4g} m/s^2; "
+                             f"expected about 9.81 (between {low} and {high})", key="gravity")
+    lever_arm = _vector(file, data, "lever_arm", 3, required=False)
+    if lever_arm is not None and np.linalg.norm(lever_arm) > 2.0:
+        raise RecordingError(file, f"lever arm length is {np.linalg.norm(lever_arm):.4g}, which "
+                             "looks like mm; expected m", key="lever_arm")
+    for key in ("name", "imu"):
+        if key in data and data[key] is not None and not isinstance(data[key], str):
+            raise RecordingError(file, f"expected a string, got {data[key]!r}", key=key)
+    return RecordingInfo(imu_to_body=imu_to_body, gravity=gravity, name=data.get("name"),
+                         imu=data.get("imu"), lever_arm=lever_arm)
+
+
+def read_info(path: str | Path) -> RecordingInfo:
+    """Read and validate ``recording.yaml``. Raises :class:`RecordingError`."""
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(path.name, f"file not found in {path.parent}")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise RecordingError(path.name, f"not valid YAML ({error})".replace("\n", " ")) from None
+    return parse_info(data, path.name)
+
+
+def read_recording(folder: str | Path, *, zero_position_means_occluded: bool = False) -> Recording:
+    """Read and validate a recording folder. Raises :class:`RecordingError` on any fault."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise RecordingError(folder, "not a recording folder (expected a directory holding "
+                             f"{IMU_FILE}, {MOCAP_FILE} and {META_FILE})")
+    info = read_info(folder / META_FILE)
+    imu = read_imu(folder / IMU_FILE)
+    mocap = read_mocap(folder / MOCAP_FILE,
+                       zero_position_means_occluded=zero_position_means_occluded)
+    return Recording(imu=imu, mocap=mocap, info=info, source=str(folder))
+
+
+# --------------------------------------------------------------------------------------------
+# Writing
+# --------------------------------------------------------------------------------------------
+
+
+def _write_csv(path: Path, columns: Sequence[str], values: NDArray) -> None:
+    # pandas writes floats with repr(), the shortest string that reads back to the same double,
+    # so write -> read round-trips exactly. NaN becomes an empty cell.
+    frame = pd.DataFrame(np.asarray(values, dtype=float), columns=list(columns))
+    frame.to_csv(path, index=False, na_rep="")
+
+
+def info_to_dict(info: RecordingInfo) -> dict:
+    """The plain mapping written to ``recording.yaml`` (optional keys only when set)."""
+    data: dict = {"imu_to_body": [float(v) for v in info.imu_to_body],
+                  "gravity": [float(v) for v in info.gravity]}
+    if info.name is not None:
+        data["name"] = info.name
+    if info.imu is not None:
+        data["imu"] = info.imu
+    if info.lever_arm is not None:
+        data["lever_arm"] = [float(v) for v in info.lever_arm]
+    return data
+
+
+def write_recording(recording: Recording, folder: str | Path) -> Path:
+    """Write a recording folder (creating it); returns its path. Round-trips exactly."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    imu = recording.imu
+    _write_csv(folder / IMU_FILE, IMU_COLUMNS,
+               np.column_stack([imu.t, imu.accelerometer, imu.gyroscope]))
+    mocap = recording.mocap
+    _write_csv(folder / MOCAP_FILE, MOCAP_COLUMNS,
+               np.column_stack([mocap.t, mocap.position, mocap.quaternion]))
+    (folder / META_FILE).write_text(yaml.safe_dump(info_to_dict(recording.info), sort_keys=False))
+    return folder

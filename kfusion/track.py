@@ -1,0 +1,82 @@
+"""The estimator output: one row per mocap row, and the ``kfusion track`` CSV format.
+
+Columns (stable: other tools read them): ``t, x, y, z, std_x, std_y, std_z, status``.
+
+* ``t`` equals the mocap row's time, s;
+* ``x, y, z`` the position estimate, m, global frame; empty where ``status`` is ``lost``;
+* ``std_x, std_y, std_z`` the 1-sigma uncertainty per axis, m; empty where a method has none;
+* ``status`` is ``tracked`` (the mocap fix at this row was used), ``bridged`` (estimate inside a
+  gap) or ``lost`` (no estimate: before the first fix or past the bridging horizon).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from kfusion.conventions import LOST, STATUSES, TRACK_COLUMNS
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """An estimator's output at the mocap timestamps.
+
+    Attributes:
+        t: (m,) times, s (the mocap rows' times).
+        position: (m, 3) estimate, m, global frame; NaN where lost.
+        std: (m, 3) 1-sigma per axis, m; NaN where the method gives none or where lost.
+        status: (m,) strings from :data:`kfusion.conventions.STATUSES`.
+        time_since_fix: (m,) s since the last accepted mocap fix (inf before the first).
+        method: name of the method that produced it.
+    """
+
+    t: NDArray[np.float64]
+    position: NDArray[np.float64]
+    std: NDArray[np.float64]
+    status: NDArray[np.str_]
+    time_since_fix: NDArray[np.float64]
+    method: str = ""
+
+    def __post_init__(self) -> None:
+        m = np.asarray(self.t).shape[0]
+        shapes = {"position": (m, 3), "std": (m, 3), "status": (m,), "time_since_fix": (m,)}
+        for name, shape in shapes.items():
+            if np.shape(getattr(self, name)) != shape:
+                raise ValueError(f"TrackResult.{name}: expected shape {shape}, "
+                                 f"got {np.shape(getattr(self, name))}")
+        unknown = set(np.unique(self.status)) - set(STATUSES)
+        if unknown:
+            raise ValueError(f"TrackResult.status: expected values in {STATUSES}, got {unknown}")
+
+    def __len__(self) -> int:
+        return int(np.asarray(self.t).shape[0])
+
+    def to_frame(self) -> pd.DataFrame:
+        """The ``kfusion track`` table as a DataFrame (NaN where a cell is empty)."""
+        lost = np.asarray(self.status) == LOST
+        position = np.where(lost[:, None], np.nan, self.position)
+        std = np.where(lost[:, None], np.nan, self.std)
+        frame = pd.DataFrame(np.column_stack([self.t, position, std]), columns=TRACK_COLUMNS[:7])
+        frame["status"] = np.asarray(self.status, dtype=str)
+        return frame
+
+
+def write_track_csv(result: TrackResult, path: str | Path) -> Path:
+    """Write the ``kfusion track`` CSV. Empty cells for NaN. Returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    result.to_frame().to_csv(path, index=False, na_rep="")
+    return path
+
+
+def read_track_csv(path: str | Path) -> pd.DataFrame:
+    """Read a ``kfusion track`` CSV back as a DataFrame with the documented columns."""
+    frame = pd.read_csv(path)
+    missing = [c for c in TRACK_COLUMNS if c not in frame.columns]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {missing}; expected {list(TRACK_COLUMNS)}")
+    return frame[list(TRACK_COLUMNS)]
