@@ -62,6 +62,8 @@ class RecordingError(ValueError):
         column: column name, or None.
         key: YAML key path, or None.
         reason: what is wrong, stating what was expected and what was found.
+        line: 1-based line of the row in the file; ``row + 1`` (one header line) unless given,
+            for files with a longer header such as a Motive export.
     """
 
     def __init__(
@@ -72,15 +74,17 @@ class RecordingError(ValueError):
         row: int | None = None,
         column: str | None = None,
         key: str | None = None,
+        line: int | None = None,
     ) -> None:
         self.file = str(file)
         self.row = row
         self.column = column
         self.key = key
         self.reason = reason
+        self.line = line if line is not None or row is None else row + 1
         where = [self.file]
         if row is not None:
-            where.append(f"row {row} (line {row + 1})")
+            where.append(f"row {row} (line {self.line})")
         if column is not None:
             where.append(f"column '{column}'")
         if key is not None:
@@ -160,7 +164,8 @@ class MocapFrames:
     @property
     def visible(self) -> NDArray[np.bool_]:
         """(m,) True where the frame holds a position and an orientation."""
-        return ~(np.isnan(self.position).any(axis=1) | np.isnan(self.quaternion).any(axis=1))
+        return np.asarray(~(np.isnan(self.position).any(axis=1)
+                            | np.isnan(self.quaternion).any(axis=1)))
 
 
 @dataclass(frozen=True)
@@ -172,7 +177,8 @@ class RecordingInfo:
         gravity: (3,) gravity in the global frame, m/s^2.
         name: optional recording name.
         imu: optional IMU profile name (see :mod:`kfusion.profiles`).
-        lever_arm: optional (3,) IMU position in the body frame relative to the rigid-body origin, m.
+        lever_arm: optional (3,) IMU position in the body frame relative to the rigid-body
+            origin, m.
     """
 
     imu_to_body: NDArray[np.float64]
@@ -241,7 +247,8 @@ def _read_table(path: Path, columns: Sequence[str]) -> tuple[pd.DataFrame, NDArr
     try:
         raw = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as error:
-        raise RecordingError(path.name, f"cannot be parsed as CSV ({error})") from None
+        message = str(error).strip().replace("\n", " ")
+        raise RecordingError(path.name, f"cannot be parsed as CSV ({message})") from None
     raw.columns = [str(c).strip() for c in raw.columns]
     missing = [c for c in columns if c not in raw.columns]
     if missing:
@@ -252,7 +259,8 @@ def _read_table(path: Path, columns: Sequence[str]) -> tuple[pd.DataFrame, NDArr
         )
     raw = raw[list(columns)]
     stripped = raw.apply(lambda s: s.str.strip())
-    empty = stripped.eq("").to_numpy() | stripped.apply(lambda s: s.str.lower().eq("nan")).to_numpy()
+    empty = stripped.eq("").to_numpy() | stripped.apply(
+        lambda s: s.str.lower().eq("nan")).to_numpy()
     numeric = stripped.apply(pd.to_numeric, errors="coerce")
     bad = numeric.isna().to_numpy() & ~empty
     if bad.any():
@@ -266,21 +274,23 @@ def _read_table(path: Path, columns: Sequence[str]) -> tuple[pd.DataFrame, NDArr
     return numeric.astype(float), empty
 
 
-def _check_time(path_name: str, t: NDArray[np.float64], empty: NDArray[np.bool_]) -> None:
+def check_times(path_name: str, t: NDArray[np.float64], empty: NDArray[np.bool_]) -> None:
     if empty.any():
         row = int(np.flatnonzero(empty)[0])
         raise RecordingError(path_name, "empty timestamp; expected a time in s", row=row + 1,
                              column="t")
     if not np.isfinite(t).all():
         row = int(np.flatnonzero(~np.isfinite(t))[0])
-        raise RecordingError(path_name, f"non-finite timestamp {t[row]}", row=row + 1, column="t")
+        raise RecordingError(path_name, f"non-finite timestamp {float(t[row])!r}", row=row + 1,
+                             column="t")
     steps = np.diff(t)
     if (steps <= 0).any():
         row = int(np.flatnonzero(steps <= 0)[0]) + 1
         kind = "duplicated" if steps[row - 1] == 0 else "earlier than the previous row"
         raise RecordingError(
             path_name,
-            f"timestamp {t[row]!r} is {kind} ({t[row - 1]!r}); expected strictly increasing times",
+            f"timestamp {float(t[row])!r} is {kind} ({float(t[row - 1])!r}); expected strictly "
+            "increasing times",
             row=row + 1,
             column="t",
         )
@@ -291,22 +301,23 @@ def read_imu(path: str | Path) -> ImuSamples:
     path = Path(path)
     table, empty = _read_table(path, IMU_COLUMNS)
     values = table.to_numpy()
-    _check_time(path.name, values[:, 0], empty[:, 0])
+    check_times(path.name, values[:, 0], empty[:, 0])
     finite = np.isfinite(values) & ~empty
     if not finite.all():
         row, col = np.argwhere(~finite)[0]
+        shown = "(empty or NaN)" if empty[row, col] else repr(float(table.iat[row, col]))
         raise RecordingError(
             path.name,
-            f"non-finite or empty IMU value {table.iat[row, col]!r}; IMU samples must be finite",
+            f"non-finite or empty IMU value {shown}; IMU samples must be finite",
             row=int(row) + 1,
             column=IMU_COLUMNS[col],
         )
     samples = ImuSamples(t=values[:, 0], accelerometer=values[:, 1:4], gyroscope=values[:, 4:7])
-    _check_imu_units(path.name, samples)
+    check_imu_units(path.name, samples)
     return samples
 
 
-def _check_imu_units(file: str, samples: ImuSamples) -> None:
+def check_imu_units(file: str, samples: ImuSamples) -> None:
     if len(samples) == 0:
         raise RecordingError(file, "no samples")
     magnitude = float(np.median(np.linalg.norm(samples.accelerometer, axis=1)))
@@ -345,7 +356,9 @@ def read_mocap(path: str | Path, *, zero_position_means_occluded: bool = False) 
     path = Path(path)
     table, empty = _read_table(path, MOCAP_COLUMNS)
     values = table.to_numpy()
-    _check_time(path.name, values[:, 0], empty[:, 0])
+    if len(values) == 0:
+        raise RecordingError(path.name, "no frames; expected at least one mocap row")
+    check_times(path.name, values[:, 0], empty[:, 0])
     cells = values[:, 1:]
     missing = empty[:, 1:] | np.isnan(cells)
     if np.isinf(cells).any():
@@ -367,11 +380,11 @@ def read_mocap(path: str | Path, *, zero_position_means_occluded: bool = False) 
         occluded |= ~occluded & (cells[:, :3] == 0).all(axis=1)
     cells = np.where(occluded[:, None], np.nan, cells)
     position, quaternion = cells[:, :3], cells[:, 3:]
-    _check_mocap_values(path.name, position, quaternion, ~occluded)
+    check_mocap_values(path.name, position, quaternion, ~occluded)
     return MocapFrames(t=values[:, 0], position=position, quaternion=quaternion)
 
 
-def _check_mocap_values(file: str, position: NDArray, quaternion: NDArray,
+def check_mocap_values(file: str, position: NDArray, quaternion: NDArray,
                         visible: NDArray[np.bool_]) -> None:
     norm_error = np.abs(np.linalg.norm(quaternion, axis=1) - 1.0)
     bad = visible & (norm_error > QUATERNION_NORM_TOLERANCE)
