@@ -19,6 +19,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.ticker import FuncFormatter  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from kfusion.conventions import LOST  # noqa: E402
@@ -121,20 +122,77 @@ def error_by_gap_length_figure(per_gap: pd.DataFrame, *, metric: str = "max_mm",
 
 
 def heatmap_figure(table: pd.DataFrame, *, rows: str, columns: str, value: str,
-                   title: str = "", path: str | Path | None = None) -> Figure:
-    """Heat map of ``value`` (mean over repeats) on a ``rows`` x ``columns`` grid of a sweep."""
-    grid = table.pivot_table(index=rows, columns=columns, values=value, aggfunc="mean")
-    figure, ax = plt.subplots(figsize=(1.2 + 1.1 * grid.shape[1], 1.0 + 0.6 * grid.shape[0]))
-    image = ax.imshow(grid.to_numpy(dtype=float), cmap="viridis", aspect="auto")
-    ax.set_xticks(range(grid.shape[1]), [str(c) for c in grid.columns], rotation=30)
-    ax.set_yticks(range(grid.shape[0]), [str(i) for i in grid.index])
-    ax.set_xlabel(columns)
-    ax.set_ylabel(rows)
-    for i in range(grid.shape[0]):
-        for j in range(grid.shape[1]):
-            ax.text(j, i, f"{grid.iat[i, j]:.3g}", ha="center", va="center", color="w", fontsize=8)
-    figure.colorbar(image, ax=ax, label=value)
+                   title: str = "", path: str | Path | None = None,
+                   facet: str | None = None) -> Figure:
+    """Heat map of ``value`` (mean over repeats and any other column) on a ``rows`` x ``columns``
+    grid of a sweep; with ``facet``, one panel per value of that column on a shared colour
+    scale. ``table`` is a sweep's results table (one row per run)."""
+    panels = [(None, table)] if facet is None else list(table.groupby(facet, sort=True))
+    grids = [(label, frame.pivot_table(index=rows, columns=columns, values=value,
+                                       aggfunc="mean")) for label, frame in panels]
+    values = np.concatenate([grid.to_numpy(dtype=float).ravel() for _, grid in grids])
+    finite = values[np.isfinite(values)]
+    low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    n_rows = max(grid.shape[0] for _, grid in grids)
+    n_columns = max(grid.shape[1] for _, grid in grids)
+    figure, plot_axes = plt.subplots(
+        1, len(grids), squeeze=False, sharey=True, layout="constrained",
+        figsize=(1.6 + (1.1 * n_columns + 0.6) * len(grids), 1.4 + 0.6 * n_rows))
+    image = None
+    for ax, (label, grid) in zip(plot_axes[0], grids, strict=True):
+        data = grid.to_numpy(dtype=float)
+        image = ax.imshow(data, cmap="viridis", aspect="auto", vmin=low, vmax=high)
+        ax.set_xticks(range(grid.shape[1]), [str(c) for c in grid.columns], rotation=30,
+                      ha="right")
+        ax.set_yticks(range(grid.shape[0]), [str(i) for i in grid.index])
+        ax.set_xlabel(columns)
+        middle = (low + high) / 2
+        for i in range(grid.shape[0]):
+            for j in range(grid.shape[1]):
+                cell = data[i, j]
+                ax.text(j, i, "-" if np.isnan(cell) else f"{cell:.3g}", ha="center",
+                        va="center", fontsize=8, color="k" if cell > middle else "w")
+        if label is not None:
+            ax.set_title(f"{facet} = {label}", fontsize=9)
+    plot_axes[0, 0].set_ylabel(rows)
+    if image is not None:
+        figure.colorbar(image, ax=list(plot_axes[0]), label=value)
     if title:
-        ax.set_title(title)
-    figure.tight_layout()
+        figure.suptitle(title)
+    return _save(figure, path)
+
+
+def sweep_lines_figure(table: pd.DataFrame, *, x: str, value: str, hue: str = "method",
+                       facet: str | None = None, log: bool = True, title: str = "",
+                       path: str | Path | None = None) -> Figure:
+    """``value`` against the sweep axis ``x``, one line per value of ``hue`` (mean over seeds
+    and other columns, with a band of +-1 standard deviation across seeds), one panel per value
+    of ``facet``. ``x`` is treated as categorical, in sorted order. ``table`` is a sweep's
+    results table (one row per run)."""
+    panels = [(None, table)] if facet is None else list(table.groupby(facet, sort=True))
+    figure, plot_axes = plt.subplots(1, len(panels), squeeze=False, sharey=True,
+                                     layout="constrained", figsize=(1.0 + 4.2 * len(panels), 3.6))
+    for ax, (label, frame) in zip(plot_axes[0], panels, strict=True):
+        positions = {key: index for index, key in enumerate(sorted(frame[x].unique()))}
+        for name, rows in frame.groupby(hue, sort=False):
+            statistics = rows.groupby(x)[value].agg(["mean", "std"]).sort_index()
+            where = [positions[key] for key in statistics.index]
+            colour = METHOD_COLOURS.get(str(name))
+            ax.plot(where, statistics["mean"], "o-", color=colour, label=str(name))
+            spread = statistics["std"].fillna(0.0)
+            ax.fill_between(where, statistics["mean"] - spread, statistics["mean"] + spread,
+                            color=colour, alpha=0.15, lw=0)
+        ax.set_xticks(list(positions.values()), [str(key) for key in positions], rotation=20)
+        ax.set_xlabel(x)
+        if log:
+            ax.set_yscale("log")
+            ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
+        ax.grid(alpha=0.3, which="both")
+        if label is not None:
+            ax.set_title(f"{facet} = {label}", fontsize=9)
+    plot_axes[0, 0].set_ylabel(value)
+    plot_axes[0, 0].legend(fontsize=8)
+    if title:
+        figure.suptitle(title)
     return _save(figure, path)
