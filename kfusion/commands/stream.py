@@ -1,0 +1,142 @@
+"""``kfusion stream DIR``: feed a recording to :class:`kfusion.tracker.Tracker` sample by sample.
+
+It shows what safety software calling kfusion in-process would see: the samples go in time order
+(IMU before mocap at equal times) and after every N-th mocap frame one line is printed::
+
+    t=12.340 s  status=bridged  pos=(0.1234, 1.2345, 0.4567) m  bound99=4.2 mm  since_fix=0.120 s
+
+A lost estimate prints ``pos=unknown  bound99=unknown``: never a number.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Iterator
+
+from kfusion.conventions import LOST
+from kfusion.recording import Recording, read_recording
+from kfusion.tracker import METHODS, Estimate, Tracker
+
+NAME = "stream"
+HELP = "Stream a recording through the online Tracker and print statuses and bounds."
+ORDER = 45
+
+
+def stream_recording(recording: Recording, tracker: Tracker | None = None
+                     ) -> Iterator[tuple[int, Estimate]]:
+    """Feed ``recording`` to ``tracker`` in time order; yield ``(mocap row, estimate)`` right
+    after each mocap row (at equal times the IMU sample goes first).
+
+    ``tracker`` None builds one from the recording's metadata (Kalman, default parameters).
+    """
+    if tracker is None:
+        tracker = Tracker.from_recording_info(recording.info)
+    imu, mocap = recording.imu, recording.mocap
+    imu_t = imu.t.tolist()
+    accelerometer, gyroscope = imu.accelerometer, imu.gyroscope
+    n = len(imu_t)
+    i = 0
+    for row, t in enumerate(mocap.t.tolist()):
+        while i < n and imu_t[i] <= t:
+            tracker.push_imu(imu_t[i], accelerometer[i], gyroscope[i])
+            i += 1
+        visible = bool(mocap.visible[row])
+        tracker.push_mocap(t, mocap.position[row] if visible else None,
+                           mocap.quaternion[row] if visible else None)
+        yield row, tracker.estimate()
+
+
+def format_estimate(estimate: Estimate, confidence: float = 0.99) -> str:
+    """One line: time, status, position (m), bound at ``confidence`` (mm), time since fix (s)."""
+    label = f"bound{_percent(confidence)}"
+    if estimate.status == LOST:
+        where = f"pos=unknown  {label}=unknown"
+    else:
+        x, y, z = (float(v) for v in estimate.position)
+        bound = estimate.bound(confidence)
+        size = f"{1000 * bound:.1f} mm" if math.isfinite(bound) else "unknown"
+        where = f"pos=({x:.4f}, {y:.4f}, {z:.4f}) m  {label}={size}"
+    since = estimate.time_since_fix
+    since_text = f"{since:.3f} s" if math.isfinite(since) else "never"
+    return f"t={estimate.t:.3f} s  status={estimate.status:<7}  {where}  since_fix={since_text}"
+
+
+def stream_lines(recording: Recording, *, count: int | None = None, every: int = 10,
+                 confidence: float = 0.99, method: str = "kalman",
+                 start: float | None = None) -> list[str]:
+    """Lines of :func:`format_estimate` after every ``every``-th mocap row (at most ``count``).
+
+    Args:
+        recording: the recording to stream.
+        count: stop after this many lines (None: the whole recording).
+        every: print after every N-th mocap row, N >= 1.
+        confidence: the bound's probability, in (0, 1).
+        method: ``kalman`` or ``baseline``.
+        start: s; print only rows at or after this time (earlier rows are still streamed).
+    """
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ValueError(f"every: expected a positive integer, got {every!r}")
+    if count is not None and (isinstance(count, bool) or not isinstance(count, int) or count < 1):
+        raise ValueError(f"count: expected a positive integer or None, got {count!r}")
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence: expected a probability in (0, 1), got {confidence!r}")
+    tracker = Tracker.from_recording_info(recording.info, method=method)
+    lines: list[str] = []
+    printed = 0
+    for _, estimate in stream_recording(recording, tracker):
+        if start is not None and estimate.t < start:
+            continue
+        if printed % every == 0:
+            lines.append(format_estimate(estimate, confidence))
+            if count is not None and len(lines) >= count:
+                break
+        printed += 1
+    return lines
+
+
+def _percent(confidence: float) -> str:
+    text = f"{100 * confidence:.10g}"
+    return text.replace(".", "_")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("folder", metavar="DIR", help="recording folder")
+    parser.add_argument("--every", type=int, default=10, metavar="N",
+                        help="print a line after every N-th mocap frame (default: 10)")
+    parser.add_argument("--confidence", type=float, default=0.99,
+                        help="probability of the printed bound (default: 0.99)")
+    parser.add_argument("--method", choices=METHODS, default="kalman",
+                        help="estimator (default: kalman)")
+    parser.add_argument("--count", type=int, default=None, metavar="K",
+                        help="stop after K lines (default: the whole recording)")
+    parser.add_argument("--health", action="store_true",
+                        help="print the tracker's health counters at the end")
+    parser.add_argument("--zeros-occluded", action="store_true",
+                        help="read a mocap position of exactly (0, 0, 0) as occluded")
+
+
+def run(args: argparse.Namespace) -> int:
+    recording = read_recording(args.folder, zero_position_means_occluded=args.zeros_occluded)
+    if args.every < 1:
+        raise ValueError(f"--every: expected a positive integer, got {args.every}")
+    if not 0.0 < args.confidence < 1.0:
+        raise ValueError(f"--confidence: expected a probability in (0, 1), got "
+                         f"{args.confidence}")
+    if args.count is not None and args.count < 1:
+        raise ValueError(f"--count: expected a positive integer, got {args.count}")
+    tracker = Tracker.from_recording_info(recording.info, method=args.method)
+    printed = 0
+    for index, (_, estimate) in enumerate(stream_recording(recording, tracker)):
+        if index % args.every == 0:
+            print(format_estimate(estimate, args.confidence))
+            printed += 1
+            if args.count is not None and printed >= args.count:
+                break
+    if args.health:
+        health = tracker.health.as_dict()
+        for key, value in health.items():
+            if isinstance(value, float):
+                value = round(value, 6)
+            print(f"{key}: {value}")
+    return 0

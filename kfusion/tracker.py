@@ -1,0 +1,1182 @@
+"""A streaming tracker for in-process use at IMU rate, built for safety software.
+
+:class:`Tracker` wraps the Kalman filter (:mod:`kfusion.kalman`) or, on request, the paper's
+baseline (:mod:`kfusion.baseline`). It validates every call before the estimator sees it, keeps
+health counters, and reports every output with its time, a status, the time since the last mocap
+fix and a position bound usable as ISO/TS 15066's Z_d (:mod:`kfusion.safety`).
+
+Usage::
+
+    tracker = Tracker(imu_to_body=[1, 0, 0, 0], gravity=[0, -9.81, 0])
+    tracker.push_imu(t, accelerometer, gyroscope)     # m/s^2, rad/s, IMU frame
+    tracker.push_mocap(t, position, quaternion)       # m, [w, x, y, z]; None/NaN: occluded
+    estimate = tracker.estimate()
+    estimate.status, estimate.bound(0.99)             # 'tracked' | 'bridged' | 'lost', m
+
+Status (at time t, with t_fix the time of the last fused mocap fix):
+
+* ``lost``: no fix yet, ``t - t_fix > max_bridge_s``, the estimator has no estimate, or the
+  state is not finite. The position is NaN and ``bound()`` is ``math.inf``.
+* ``tracked``: the last mocap frame pushed was fused and ``t - t_fix <= fix_timeout_s``.
+* ``bridged``: otherwise (the last frame was occluded or gated, or frames stopped arriving).
+
+Bad input (each case is counted in :attr:`Tracker.health`). Bad values never raise; the only
+exception any call raises is ValueError, for a wrong shape or type (or an ``estimate(t)`` earlier
+than the newest sample, a ``restore`` of a foreign snapshot, a bad constructor argument):
+
+=====================================  ==========================================================
+input                                  behaviour
+=====================================  ==========================================================
+wrong shape or type                    ValueError naming what was expected and what was received
+NaN/inf IMU value or time              rejected ``non_finite``; state untouched
+time <= the stream's last time         rejected ``out_of_order``; same time and values:
+                                       ``duplicate`` (skipped); same time, other values:
+                                       ``conflicting_duplicate``
+one stream behind the other            fused in time order by replaying the buffered samples
+                                       (up to ``max_delay_s``); older: ``too_late``
+long IMU dropout (large dt)            dt is never clamped: the covariance grows over the whole
+                                       interval; counted as a dropout; bridged, then lost past
+                                       ``max_bridge_s`` after the last fix
+accelerometer at its range limit       accepted, flagged ``saturated``; the Kalman filter adds
+(an axis at >= 99.9 % of the range)    (range/2)^2 acceleration variance over the interval the
+                                       sample is held, so the clipped part becomes position and
+                                       velocity uncertainty rather than bias (the bias update is
+                                       not frozen outright)
+mocap position None / NaN              occluded: no update, bridging
+mocap position inf                     rejected ``non_finite``
+mocap quaternion None / NaN            position-only update (orientation from the gyroscope)
+mocap quaternion not unit (> 1e-3)     rejected ``bad_quaternion``
+mocap jump / marker swap               chi-square gate: rejected ``gated`` and counted; after
+                                       ``reacquire_after_s`` without a fix the next fix is
+                                       accepted (re-acquisition, counted)
+non-finite estimator state             status lost, the estimator restarts at the next fix,
+                                       counted in ``state_resets``
+=====================================  ==========================================================
+
+Out-of-step streams: each stream must be in time order, but the two may arrive out of step (the
+mocap typically lags the IMU by a few ms). The tracker keeps the samples of the last
+``max_delay_s`` seconds and state checkpoints; a sample older than the newest fused time is
+inserted in time order and the samples after it are fused again from the checkpoint before it.
+The result is bit-identical to pushing everything in time order (IMU before mocap at equal
+times).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from functools import lru_cache
+from numbers import Real
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Final, Protocol
+
+import numpy as np
+import yaml
+from numpy.typing import ArrayLike, NDArray
+
+from kfusion.conventions import (
+    BRIDGED,
+    GRAVITY_MAGNITUDE_RANGE,
+    LOST,
+    QUATERNION_NORM_TOLERANCE,
+    TRACKED,
+)
+from kfusion.profiles import ImuProfile, imu_profile
+from kfusion.recording import RecordingInfo
+
+# ---------------------------------------------------------------------------------------------
+# Reasons (the strings of PushOutcome.reason and the keys of the health counters)
+# ---------------------------------------------------------------------------------------------
+
+ACCEPTED: Final = "accepted"
+"""IMU sample fused, or mocap fix fused through the gate."""
+SATURATED: Final = "saturated"
+"""IMU sample fused with an accelerometer axis at its range limit (flag, not a rejection)."""
+REACQUIRED: Final = "reacquired"
+"""Mocap fix fused as a re-acquisition after a long gap (accepted without gating)."""
+OCCLUDED: Final = "occluded"
+"""Mocap frame without a position (None or NaN): no update."""
+GATED: Final = "gated"
+"""Mocap fix rejected by the chi-square innovation gate (jump, marker swap)."""
+NON_FINITE: Final = "non_finite"
+OUT_OF_ORDER: Final = "out_of_order"
+DUPLICATE: Final = "duplicate"
+CONFLICTING_DUPLICATE: Final = "conflicting_duplicate"
+TOO_LATE: Final = "too_late"
+BAD_QUATERNION: Final = "bad_quaternion"
+
+IMU_REJECTIONS: Final = (NON_FINITE, OUT_OF_ORDER, DUPLICATE, CONFLICTING_DUPLICATE, TOO_LATE)
+MOCAP_REJECTIONS: Final = (GATED, NON_FINITE, BAD_QUATERNION, OUT_OF_ORDER, DUPLICATE,
+                           CONFLICTING_DUPLICATE, TOO_LATE)
+METHODS: Final = ("kalman", "baseline")
+DEFAULT_CONFIDENCE: Final = 0.99
+
+_IMU: Final = 0
+_MOCAP: Final = 1
+
+
+# ---------------------------------------------------------------------------------------------
+# Results
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PushOutcome:
+    """What happened to one pushed sample.
+
+    Attributes:
+        accepted: True when the sample was fused (an IMU sample propagated the state, a mocap fix
+            updated it). False for rejections, skipped duplicates and occluded frames.
+        reason: one of ``accepted``, ``saturated`` (IMU, fused but flagged), ``reacquired``,
+            ``occluded``, ``gated``, ``non_finite``, ``out_of_order``, ``duplicate``,
+            ``conflicting_duplicate``, ``too_late``, ``bad_quaternion``.
+    """
+
+    accepted: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The tracker's output at one time; arrays are read-only.
+
+    Attributes:
+        t: time of the estimate, s.
+        position: (3,) m, global frame; NaN when lost.
+        velocity: (3,) m/s, global frame; NaN when lost or not estimated.
+        covariance: (3, 3) position covariance, m^2; NaN when lost or when the method has no
+            uncertainty (baseline).
+        std: (3,) per-axis 1-sigma, m (square roots of the covariance diagonal).
+        status: ``tracked``, ``bridged`` or ``lost``.
+        time_since_fix: s since the last fused mocap fix (inf before the first).
+        method: ``kalman`` or ``baseline``.
+    """
+
+    t: float
+    position: NDArray[np.float64]
+    velocity: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    std: NDArray[np.float64]
+    status: str
+    time_since_fix: float
+    method: str
+
+    def bound(self, confidence: float = DEFAULT_CONFIDENCE) -> float:
+        """Radius r (m) with P(|p_true - position| <= r) >= confidence under the filter's model.
+
+        ``math.inf`` (explicitly unknown) when lost or when the method gives no covariance (the
+        baseline), never a small number. See :func:`position_bound` for the formula; it is
+        conservative (exact for an isotropic covariance).
+        """
+        if self.status == LOST:
+            return math.inf
+        return position_bound(self.covariance, confidence)
+
+
+@dataclass(frozen=True)
+class Health:
+    """Health counters, cumulative over the tracker's life (kept by :meth:`Tracker.reset`).
+
+    Attributes:
+        imu_pushed: push_imu calls that passed the shape/type check.
+        imu_accepted: IMU samples fused (saturated ones included).
+        imu_rejected: reason -> count (``IMU_REJECTIONS``); accepted + rejected == pushed.
+        imu_saturated: fused samples with an accelerometer axis at its range limit.
+        imu_dropouts: intervals between fused IMU samples longer than the dropout threshold.
+        longest_imu_interval_s: longest interval between fused IMU samples, s.
+        mocap_pushed: push_mocap calls that passed the shape/type check.
+        mocap_fused: fixes fused (re-acquisitions included).
+        mocap_occluded: occluded frames.
+        mocap_rejected: reason -> count (``MOCAP_REJECTIONS``, ``gated`` included);
+            fused + occluded + rejected == pushed.
+        gate_rejections: fixes rejected by the innovation gate (= ``mocap_rejected['gated']``).
+        reacquisitions: fixes accepted as re-acquisitions after a long gap.
+        time_tracked_s, time_bridged_s, time_lost_s: time spent in each status, s, from the first
+            sample to the newest.
+        longest_gap_s: longest time without a fused fix, s (the current gap included).
+        lost_transitions: times the status went from tracked or bridged to lost.
+        state_resets: times a non-finite estimator state forced a restart.
+        replays: samples that arrived behind the other stream and were fused by replay.
+        resets: calls to :meth:`Tracker.reset`.
+    """
+
+    imu_pushed: int
+    imu_accepted: int
+    imu_rejected: Mapping[str, int]
+    imu_saturated: int
+    imu_dropouts: int
+    longest_imu_interval_s: float
+    mocap_pushed: int
+    mocap_fused: int
+    mocap_occluded: int
+    mocap_rejected: Mapping[str, int]
+    gate_rejections: int
+    reacquisitions: int
+    time_tracked_s: float
+    time_bridged_s: float
+    time_lost_s: float
+    longest_gap_s: float
+    lost_transitions: int
+    state_resets: int
+    replays: int
+    resets: int
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain nested dict (for logging or YAML/JSON)."""
+        result = {item.name: getattr(self, item.name) for item in dataclasses.fields(self)}
+        result["imu_rejected"] = dict(self.imu_rejected)
+        result["mocap_rejected"] = dict(self.mocap_rejected)
+        return result
+
+
+@dataclass(frozen=True)
+class TrackerOptions:
+    """Tracker-level settings (the estimator's own are in its parameters object).
+
+    Attributes:
+        fix_timeout_s: s; the status is ``tracked`` only while the last fix is at most this old
+            (and the last frame was fused). Default 0.05 s: five frames at 100 Hz.
+        max_delay_s: s; how far one stream may lag the other and still be fused in time order
+            (by replay). 0 disables replay: a sample behind the other stream is ``too_late``.
+        checkpoint_interval_s: s; spacing of state checkpoints between mocap frames (a
+            checkpoint is also taken after every mocap frame). > 0.
+        accelerometer_range: m/s^2; a sample with an axis at 99.9 % of it or beyond is flagged
+            ``saturated``. None: the estimator's (Kalman parameters) or the IMU profile's range.
+    """
+
+    fix_timeout_s: float = 0.05
+    max_delay_s: float = 0.1
+    checkpoint_interval_s: float = 0.02
+    accelerometer_range: float | None = None
+
+    def __post_init__(self) -> None:
+        for name, positive in (("fix_timeout_s", True), ("max_delay_s", False),
+                               ("checkpoint_interval_s", True), ("accelerometer_range", True)):
+            value = getattr(self, name)
+            if value is None and name == "accelerometer_range":
+                continue
+            if isinstance(value, bool) or not isinstance(value, Real) or math.isnan(value) \
+                    or value < 0 or (positive and value == 0) \
+                    or (math.isinf(value) and name != "accelerometer_range"):
+                need = "> 0" if positive else ">= 0"
+                raise ValueError(f"TrackerOptions.{name}: expected a finite number {need}, "
+                                 f"got {value!r}")
+            object.__setattr__(self, name, float(value))
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any]) -> TrackerOptions:
+        """From a plain mapping; ValueError naming an unknown key."""
+        if not isinstance(mapping, Mapping):
+            raise ValueError(f"TrackerOptions: expected a mapping, got {type(mapping).__name__}")
+        names = [f.name for f in dataclasses.fields(cls)]
+        unknown = sorted(set(mapping) - set(names))
+        if unknown:
+            raise ValueError(f"TrackerOptions: unknown key {unknown[0]!r}; expected some of "
+                             f"{names}")
+        return cls(**dict(mapping))
+
+
+@dataclass(frozen=True)
+class TrackerSnapshot:
+    """Opaque, deep-copied state of a :class:`Tracker` (see :meth:`Tracker.snapshot`)."""
+
+    method: str
+    t: float
+    _configuration: tuple = field(repr=False)
+    _state: Any = field(repr=False, compare=False)
+
+
+_NUMERICAL_ERRORS: Final = (ArithmeticError, ValueError, np.linalg.LinAlgError)
+"""What the estimator's maths may raise on overflowing numbers (math.sin(inf), singular S)."""
+
+_FUSED: Final = PushOutcome(True, ACCEPTED)
+_FUSED_SATURATED: Final = PushOutcome(True, SATURATED)
+
+# ---------------------------------------------------------------------------------------------
+# Pure functions
+# ---------------------------------------------------------------------------------------------
+
+
+@lru_cache(maxsize=64)
+def _chi2_3_quantile(confidence: float) -> float:
+    """F^-1 of the chi-square distribution with 3 degrees of freedom (scipy, cached)."""
+    from scipy.stats import chi2  # imported on first use: it costs ~0.3 s at start-up
+
+    return float(chi2.ppf(confidence, 3))
+
+
+def position_bound(covariance: ArrayLike, confidence: float = DEFAULT_CONFIDENCE) -> float:
+    """Radius holding a Gaussian position error with probability >= ``confidence``, m.
+
+    For e ~ N(0, Σ) (3-D), |e|^2 = Σ_i λ_i z_i^2 <= λ_max χ²_3 with z ~ N(0, I), so
+
+        r = sqrt(λ_max(Σ) · F⁻¹_χ²(3)(confidence))
+
+    gives P(|e| <= r) >= confidence: exact when Σ is isotropic, conservative otherwise (the
+    right choice for a safety margin). ``math.inf`` when Σ is not finite (no uncertainty).
+
+    Args:
+        covariance: (3, 3) symmetric position covariance, m^2.
+        confidence: probability in (0, 1).
+    """
+    if isinstance(confidence, bool) or not isinstance(confidence, Real) \
+            or not 0.0 < float(confidence) < 1.0:
+        raise ValueError(f"confidence: expected a probability in (0, 1), got {confidence!r}")
+    sigma = np.asarray(covariance, dtype=float)
+    if sigma.shape != (3, 3):
+        raise ValueError(f"covariance: expected shape (3, 3), got {sigma.shape}")
+    if not np.isfinite(sigma).all():
+        return math.inf
+    largest = float(np.linalg.eigvalsh(0.5 * (sigma + sigma.T))[-1])
+    return math.sqrt(max(largest, 0.0) * _chi2_3_quantile(float(confidence)))
+
+
+def tracking_status(time_since_fix: float, last_frame_fused: bool, *, fix_timeout_s: float,
+                    max_bridge_s: float) -> str:
+    """The status rule (``time_since_fix`` is inf before the first fix):
+
+        lost     if time_since_fix > max_bridge_s
+        tracked  if the last frame was fused and time_since_fix <= fix_timeout_s
+        bridged  otherwise
+    """
+    if not time_since_fix <= max_bridge_s:
+        return LOST
+    if last_frame_fused and time_since_fix <= fix_timeout_s:
+        return TRACKED
+    return BRIDGED
+
+
+def status_durations(start: float, end: float, fix_time: float, last_frame_fused: bool, *,
+                     fix_timeout_s: float, max_bridge_s: float) -> tuple[float, float, float]:
+    """Time (s) spent tracked, bridged and lost over [start, end] with no new fix inside.
+
+    With f = fix_time (``-inf`` before any fix), :func:`tracking_status` is tracked on
+    [f, f + fix_timeout_s] (only if the last frame was fused), bridged up to f + max_bridge_s,
+    and lost after; the result is the length of each of those intervals within [start, end].
+    """
+    tracked_end = fix_time + (fix_timeout_s if last_frame_fused else 0.0)
+    bridged_end = fix_time + max_bridge_s
+
+    def overlap(low: float, high: float) -> float:
+        return max(0.0, min(end, high) - max(start, low))
+
+    tracked = overlap(fix_time, tracked_end) if last_frame_fused else 0.0
+    bridged = overlap(tracked_end, bridged_end)
+    lost = (end - start) - tracked - bridged
+    return tracked, bridged, max(lost, 0.0)
+
+
+def _read_only(array: NDArray[np.float64]) -> NDArray[np.float64]:
+    array.flags.writeable = False
+    return array
+
+
+def _describe(value: object, array: NDArray | None) -> str:
+    if array is None or array.dtype.kind == "O":
+        return f"{type(value).__name__}"
+    if array.dtype.kind not in "fiu":
+        return f"{type(value).__name__} of dtype {array.dtype} with shape {array.shape}"
+    return f"shape {array.shape}"
+
+
+def _vector(where: str, name: str, value: object, size: int, unit: str) -> NDArray[np.float64]:
+    """``value`` as a new float array of shape (size,); ValueError for a wrong shape or type.
+
+    Non-finite values pass (the caller rejects or interprets them).
+    """
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError):
+        array = None
+    if array is None or array.shape != (size,) or array.dtype.kind not in "fiu":
+        raise ValueError(f"{where}: {name}: expected {size} finite numbers ({unit}), got "
+                         f"{_describe(value, array)}")
+    return np.array(array, dtype=np.float64)
+
+
+def _time(where: str, t: object) -> float:
+    """``t`` as a float; ValueError when it is not a real number (NaN/inf pass)."""
+    if isinstance(t, (bool, np.bool_)) or not isinstance(t, (Real, np.integer, np.floating)):
+        if isinstance(t, np.ndarray) and t.shape == () and t.dtype.kind in "fiu":
+            return float(t)
+        raise ValueError(f"{where}: t: expected a time in s (a real number), got "
+                         f"{type(t).__name__}")
+    return float(t)  # type: ignore[arg-type]
+
+
+# ---------------------------------------------------------------------------------------------
+# Estimators behind one small interface
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Reading:
+    """An estimator's state at one time, in new arrays: position (3,) m, velocity (3,) m/s,
+    position covariance (3, 3) m^2 (symmetric) and its diagonal's square roots (3,) m; NaN
+    where the method has none."""
+
+    position: NDArray[np.float64]
+    velocity: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    std: NDArray[np.float64]
+
+
+class _Estimator(Protocol):
+    method: str
+    has_covariance: bool
+    max_bridge_s: float
+    imu_dropout_s: float
+    accelerometer_range: float
+
+    def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None: ...
+
+    def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str: ...
+
+    def read(self, t: float) -> _Reading | None: ...
+
+    def finite(self) -> bool: ...
+
+    def snapshot(self) -> object: ...
+
+    def restore(self, snapshot: object) -> None: ...
+
+
+class _BaselineEstimator:
+    """:class:`kfusion.baseline.BaselineTracker` behind the tracker's interface (no covariance,
+    no gate; its saturated samples are flagged but not treated differently)."""
+
+    method = "baseline"
+    has_covariance = False
+
+    def __init__(self, imu_to_body: NDArray, params: Any, accelerometer_range: float) -> None:
+        from kfusion.baseline import BaselineTracker
+
+        self._tracker = BaselineTracker(imu_to_body, params)
+        self.max_bridge_s = float(params.max_bridge_s)
+        self.imu_dropout_s = 0.1
+        self.accelerometer_range = accelerometer_range
+
+    def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
+        self._tracker.push_imu(t, accelerometer, gyroscope)
+
+    def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str:
+        if position is None or quaternion is None:
+            # the paper's method needs the orientation at every fix
+            self._tracker.push_mocap(t, None, None)
+            return OCCLUDED
+        self._tracker.push_mocap(t, position, quaternion)
+        return ACCEPTED
+
+    def read(self, t: float) -> _Reading | None:
+        output = self._tracker.estimate(t)
+        if output.status == LOST:
+            return None
+        nan3 = np.full(3, np.nan)
+        return _Reading(np.array(output.position, dtype=float), nan3, np.full((3, 3), np.nan),
+                        nan3)
+
+    def finite(self) -> bool:
+        return True  # its state is rebuilt at every fix; the tracker checks every reading
+
+    def snapshot(self) -> object:
+        return copy.deepcopy(self._tracker)
+
+    def restore(self, snapshot: object) -> None:
+        self._tracker = copy.deepcopy(snapshot)  # type: ignore[assignment]
+
+
+class _KalmanEstimator:
+    """:class:`kfusion.kalman.KalmanFusion` behind the tracker's interface.
+
+    The tracker has already validated each event (finite, shapes, time order), so the fusion's
+    own checks pass; its first fix (``initialised``) counts as fused.
+    """
+
+    method = "kalman"
+    has_covariance = True
+
+    def __init__(self, imu_to_body: NDArray, gravity: NDArray, params: Any,
+                 lever_arm: NDArray | None) -> None:
+        from kfusion.kalman import KalmanFusion
+
+        self._fusion = KalmanFusion(imu_to_body, gravity, params, lever_arm=lever_arm)
+        self.max_bridge_s = float(params.max_bridge_s)
+        self.imu_dropout_s = float(params.imu_dropout_s)
+        self.accelerometer_range = float(params.accelerometer_range)
+
+    def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
+        self._fusion.predict(t, accelerometer, gyroscope)
+
+    def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str:
+        return _KALMAN_OUTCOMES[self._fusion.update(t, position, quaternion).kind]
+
+    def read(self, t: float) -> _Reading | None:
+        if not self._fusion.initialised:
+            return None
+        step = self._fusion.estimate(t)  # new arrays
+        covariance = step.position_covariance
+        return _Reading(step.position, step.velocity, 0.5 * (covariance + covariance.T),
+                        step.std)
+
+    def finite(self) -> bool:
+        kf = self._fusion._kf  # read only, without the public properties' copies
+        return bool(np.isfinite(kf.x).all() and np.isfinite(kf.P).all())
+
+    def snapshot(self) -> object:
+        return self._fusion.snapshot()
+
+    def restore(self, snapshot: object) -> None:
+        self._fusion.restore(snapshot)  # type: ignore[arg-type]
+
+
+_KALMAN_OUTCOMES: Final = {"accepted": ACCEPTED, "initialised": ACCEPTED, "reacquired": REACQUIRED,
+                           "gated": GATED, "occluded": OCCLUDED}
+"""kfusion.kalman's update outcomes -> the tracker's reasons."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Bookkeeping that follows the fused event order (checkpointed with the estimator)
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Counts:
+    """Counters decided by fusing, in event order (restored with checkpoints on replay)."""
+
+    mocap_fused: int = 0
+    mocap_occluded: int = 0
+    gated: int = 0
+    reacquisitions: int = 0
+    time_tracked_s: float = 0.0
+    time_bridged_s: float = 0.0
+    time_lost_s: float = 0.0
+    longest_gap_s: float = 0.0
+    lost_transitions: int = 0
+    state_resets: int = 0
+
+
+@dataclass
+class _Book:
+    """Fix bookkeeping at the newest fused event."""
+
+    key: tuple[float, int] | None = None  # (t, stream) of the newest fused event
+    fix_time: float = -math.inf
+    last_frame_fused: bool = False
+    status: str = LOST
+    counts: _Counts = field(default_factory=_Counts)
+
+    def copy(self) -> _Book:
+        counts = _Counts.__new__(_Counts)  # a plain field copy: this runs at mocap rate
+        counts.__dict__.update(self.counts.__dict__)
+        return _Book(self.key, self.fix_time, self.last_frame_fused, self.status, counts)
+
+
+@dataclass
+class _Checkpoint:
+    key: tuple[float, int]
+    estimator: object
+    book: _Book
+
+
+@dataclass
+class _Stream:
+    """Arrival-side state and counters of one input stream."""
+
+    last_t: float = -math.inf
+    last_values: tuple[NDArray, NDArray] | None = None
+    pushed: int = 0
+    accepted: int = 0
+    rejected: dict[str, int] = field(default_factory=dict)
+    saturated: int = 0
+    dropouts: int = 0
+    longest_interval_s: float = 0.0
+
+
+# ---------------------------------------------------------------------------------------------
+# The tracker
+# ---------------------------------------------------------------------------------------------
+
+
+class Tracker:
+    """Streaming position tracker for one limb: IMU at its rate, mocap when seen.
+
+    Args:
+        imu_to_body: (4,) rotation IMU -> body, [w, x, y, z].
+        gravity: (3,) gravity in the global (mocap) frame, m/s^2.
+        method: ``"kalman"`` (default) or ``"baseline"`` (the paper's method; no uncertainty,
+            so its bound is ``math.inf`` = unknown).
+        imu: IMU profile name or :class:`kfusion.profiles.ImuProfile` (default ``mpu9255``);
+            it sets the Kalman noise model and the accelerometer range.
+        params: :class:`kfusion.kalman.KalmanParameters` or
+            :class:`kfusion.baseline.BaselineParameters` matching ``method``, or a mapping of
+            their fields (None: defaults from ``imu``).
+        lever_arm: (3,) IMU position in the body frame, m (Kalman only), or None.
+        options: :class:`TrackerOptions` or a mapping of its fields.
+
+    Raises:
+        ValueError: for any malformed argument, naming what was expected and what was given.
+    """
+
+    def __init__(
+        self,
+        imu_to_body: ArrayLike,
+        gravity: ArrayLike,
+        *,
+        method: str = "kalman",
+        imu: str | ImuProfile | None = None,
+        params: Any = None,
+        lever_arm: ArrayLike | None = None,
+        options: TrackerOptions | Mapping[str, Any] | None = None,
+    ) -> None:
+        q_body_imu = _vector("Tracker", "imu_to_body", imu_to_body, 4, "[w, x, y, z]")
+        norm = float(np.linalg.norm(q_body_imu))
+        if not np.isfinite(q_body_imu).all() or abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+            raise ValueError(f"Tracker: imu_to_body: expected a unit quaternion [w, x, y, z], "
+                             f"got norm {norm:.6g}")
+        gravity_vector = _vector("Tracker", "gravity", gravity, 3, "m/s^2")
+        low, high = GRAVITY_MAGNITUDE_RANGE
+        if not (np.isfinite(gravity_vector).all()
+                and low <= np.linalg.norm(gravity_vector) <= high):
+            raise ValueError(f"Tracker: gravity: expected a length of about 9.81 m/s^2 (between "
+                             f"{low} and {high}), got {np.linalg.norm(gravity_vector):.4g}")
+        lever = None if lever_arm is None else _vector("Tracker", "lever_arm", lever_arm, 3, "m")
+        if lever is not None and not np.isfinite(lever).all():
+            raise ValueError("Tracker: lever_arm: expected 3 finite numbers (m), got non-finite")
+        if method not in METHODS:
+            raise ValueError(f"Tracker: method: expected one of {list(METHODS)}, got {method!r}")
+        profile = imu if isinstance(imu, ImuProfile) else imu_profile(imu or "mpu9255")
+        if isinstance(options, Mapping):
+            options = TrackerOptions.from_mapping(options)
+        elif options is None:
+            options = TrackerOptions()
+        elif not isinstance(options, TrackerOptions):
+            raise ValueError(f"Tracker: options: expected TrackerOptions or a mapping, got "
+                             f"{type(options).__name__}")
+        self.method = method
+        self.options = options
+        self.params = _parameters(method, params, profile)
+        self.imu_profile = profile
+        self._imu_to_body = q_body_imu / norm
+        self._gravity = gravity_vector
+        self._lever_arm = lever
+        self._estimator = self._new_estimator()
+        self.max_bridge_s = self._estimator.max_bridge_s
+        if options.fix_timeout_s > self.max_bridge_s:
+            raise ValueError(f"Tracker: options.fix_timeout_s: expected at most max_bridge_s "
+                             f"({self.max_bridge_s} s), got {options.fix_timeout_s}")
+        range_ = options.accelerometer_range
+        if range_ is None:
+            range_ = self._estimator.accelerometer_range
+        self._saturation_level = 0.999 * range_
+        self._resets = 0
+        self._replays = 0
+        self._log: deque[tuple] = deque()
+        self._checkpoints: deque[_Checkpoint] = deque()
+        self._start_streams(keep_counters=False)
+
+    # ---- construction helpers ---------------------------------------------------------------
+
+    @classmethod
+    def from_recording_info(cls, info: RecordingInfo, **kwargs: Any) -> Tracker:
+        """A tracker for a recording's mounting (``imu_to_body``, ``gravity``, ``imu``,
+        ``lever_arm``); ``kwargs`` as for the constructor and take precedence."""
+        if not isinstance(info, RecordingInfo):
+            raise ValueError(f"Tracker.from_recording_info: expected a RecordingInfo, got "
+                             f"{type(info).__name__}")
+        kwargs.setdefault("imu", info.imu)
+        if kwargs.get("method", "kalman") == "kalman":
+            kwargs.setdefault("lever_arm", info.lever_arm)
+        return cls(info.imu_to_body, info.gravity, **kwargs)
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any], *, source: str = "mapping") -> Tracker:
+        """A tracker from a plain mapping with keys ``imu_to_body``, ``gravity`` (required),
+        ``method``, ``imu``, ``lever_arm``, ``parameters`` (the method's fields) and
+        ``tracker`` (:class:`TrackerOptions` fields). ValueError names ``source`` and any
+        unknown key."""
+        if not isinstance(mapping, Mapping):
+            raise ValueError(f"{source}: expected a mapping with keys {list(CONFIG_KEYS)}, got "
+                             f"{type(mapping).__name__}")
+        unknown = sorted(set(map(str, mapping)) - set(CONFIG_KEYS))
+        if unknown:
+            raise ValueError(f"{source}: unknown key {unknown[0]!r}; expected some of "
+                             f"{list(CONFIG_KEYS)}")
+        for key in ("imu_to_body", "gravity"):
+            if key not in mapping:
+                raise ValueError(f"{source}: missing key {key!r}")
+
+        def section(key: str, build: Any) -> Any:
+            try:
+                return build()
+            except ValueError as error:
+                raise ValueError(f"{source}: {key}: {error}") from None
+
+        method = mapping.get("method", "kalman")
+        if method not in METHODS:
+            raise ValueError(f"{source}: method: expected one of {list(METHODS)}, got "
+                             f"{method!r}")
+        imu = mapping.get("imu")
+        profile = section("imu", lambda: imu_profile(imu or "mpu9255")) if not isinstance(
+            imu, ImuProfile) else imu
+        params = section("parameters",
+                         lambda: _parameters(method, mapping.get("parameters"), profile))
+        options = section("tracker", lambda: TrackerOptions.from_mapping(
+            mapping.get("tracker") or {}))
+        try:
+            return cls(mapping["imu_to_body"], mapping["gravity"], method=method, imu=profile,
+                       params=params, lever_arm=mapping.get("lever_arm"), options=options)
+        except ValueError as error:
+            raise ValueError(f"{source}: {error}") from None
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> Tracker:
+        """A tracker from a YAML file (schema of :meth:`from_mapping`)."""
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"{path}: file not found")
+        try:
+            data = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as error:
+            raise ValueError(f"{path}: not valid YAML ({error})".replace("\n", " ")) from None
+        return cls.from_mapping(data, source=str(path))
+
+    def _new_estimator(self) -> _Estimator:
+        if self.method == "kalman":
+            return _KalmanEstimator(self._imu_to_body, self._gravity, self.params,
+                                    self._lever_arm)
+        return _BaselineEstimator(self._imu_to_body, self.params,
+                                  self.imu_profile.accelerometer_range)
+
+    # ---- public API -------------------------------------------------------------------------
+
+    def push_imu(self, t: float, acc: ArrayLike, gyro: ArrayLike) -> PushOutcome:
+        """Feed one IMU sample.
+
+        Args:
+            t: sample time, s.
+            acc: (3,) specific force, m/s^2, IMU frame.
+            gyro: (3,) angular rate, rad/s, IMU frame.
+
+        Returns:
+            :class:`PushOutcome`; bad values are rejected and counted, never raised.
+
+        Raises:
+            ValueError: ``t`` not a real number, or ``acc``/``gyro`` not 3 numbers.
+        """
+        t = _time("push_imu", t)
+        accelerometer = _vector("push_imu", "acc", acc, 3, "m/s^2")
+        gyroscope = _vector("push_imu", "gyro", gyro, 3, "rad/s")
+        stream = self._imu
+        stream.pushed += 1
+        a0, a1, a2 = accelerometer.tolist()
+        g0, g1, g2 = gyroscope.tolist()
+        isfinite = math.isfinite
+        if not (isfinite(t) and isfinite(a0) and isfinite(a1) and isfinite(a2)
+                and isfinite(g0) and isfinite(g1) and isfinite(g2)):
+            return self._reject(stream, NON_FINITE)
+        if t <= stream.last_t:
+            return self._order_rejection(stream, t, (accelerometer, gyroscope))
+        saturated = max(abs(a0), abs(a1), abs(a2)) >= self._saturation_level
+        if self._fuse((t, _IMU, accelerometer, (g0, g1, g2), saturated)) is None:
+            return self._reject(stream, TOO_LATE)
+        interval = t - stream.last_t  # inf for the first sample (after a reset too)
+        if interval != math.inf:
+            if interval > stream.longest_interval_s:
+                stream.longest_interval_s = interval
+            if interval > self._estimator.imu_dropout_s:
+                stream.dropouts += 1
+        stream.last_t = t
+        stream.last_values = (accelerometer, gyroscope)
+        stream.accepted += 1
+        if saturated:
+            stream.saturated += 1
+            return _FUSED_SATURATED
+        return _FUSED
+
+    def push_mocap(self, t: float, position: ArrayLike | None,
+                   quaternion: ArrayLike | None) -> PushOutcome:
+        """Feed one mocap frame.
+
+        Args:
+            t: frame time, s.
+            position: (3,) rigid-body position, m, global frame; None or any NaN: occluded.
+            quaternion: (4,) body -> global [w, x, y, z], or None / NaN (position-only fix).
+
+        Returns:
+            :class:`PushOutcome` (``accepted``, ``reacquired``, ``occluded``, ``gated`` or a
+            rejection reason).
+
+        Raises:
+            ValueError: ``t`` not a real number, position not 3 numbers, quaternion not 4.
+        """
+        t = _time("push_mocap", t)
+        nan_position = np.full(3, np.nan)
+        point = nan_position if position is None else _vector(
+            "push_mocap", "position", position, 3, "m")
+        rotation = np.full(4, np.nan) if quaternion is None else _vector(
+            "push_mocap", "quaternion", quaternion, 4, "[w, x, y, z]")
+        stream = self._mocap
+        stream.pushed += 1
+        values = point.tolist()
+        components = rotation.tolist()
+        if not math.isfinite(t) or any(map(math.isinf, values + components)):
+            return self._reject(stream, NON_FINITE)
+        if any(map(math.isnan, values)):
+            point, rotation = nan_position, np.full(4, np.nan)
+        elif any(map(math.isnan, components)):
+            rotation = np.full(4, np.nan)
+        else:
+            norm = math.sqrt(sum(value * value for value in components))
+            if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+                return self._reject(stream, BAD_QUATERNION)
+        if t <= stream.last_t:
+            return self._order_rejection(stream, t, (point, rotation))
+        reason = self._fuse((t, _MOCAP, point, rotation, False))
+        if reason is None:
+            return self._reject(stream, TOO_LATE)
+        stream.last_t, stream.last_values = t, (point, rotation)
+        stream.accepted += 1
+        return PushOutcome(reason in (ACCEPTED, REACQUIRED), reason)
+
+    def estimate(self, t: float | None = None) -> Estimate:
+        """The estimate at ``t`` (default: the newest fused sample's time; NaN before any).
+
+        A later ``t`` extrapolates with the last IMU sample held (zero-order hold) and ages
+        ``time_since_fix``; the state is not changed.
+
+        Raises:
+            ValueError: ``t`` not a real number, or earlier than the newest fused sample.
+        """
+        book = self._book
+        if t is None:
+            t = math.nan if book.key is None else book.key[0]
+        else:
+            t = _time("estimate", t)
+            if book.key is not None and not t >= book.key[0]:
+                raise ValueError(f"estimate: t: expected a time >= {book.key[0]!r} s (the "
+                                 f"newest fused sample), got {t!r}")
+        since = t - book.fix_time
+        status = tracking_status(since, book.last_frame_fused,
+                                 fix_timeout_s=self.options.fix_timeout_s,
+                                 max_bridge_s=self.max_bridge_s)
+        reading = None
+        if status != LOST and math.isfinite(t):
+            try:
+                reading = self._estimator.read(t)
+            except _NUMERICAL_ERRORS:
+                reading = None
+            if reading is not None and not _finite_reading(reading,
+                                                            self._estimator.has_covariance):
+                reading = None
+        if reading is None:
+            nan3 = _read_only(np.full(3, np.nan))
+            return Estimate(t=t, position=nan3, velocity=nan3,
+                            covariance=_read_only(np.full((3, 3), np.nan)), std=nan3,
+                            status=LOST, time_since_fix=since, method=self.method)
+        return Estimate(t=t, position=_read_only(reading.position),
+                        velocity=_read_only(reading.velocity),
+                        covariance=_read_only(reading.covariance), std=_read_only(reading.std),
+                        status=status, time_since_fix=since, method=self.method)
+
+    @property
+    def health(self) -> Health:
+        """The health counters now (a frozen copy)."""
+        imu, mocap, book = self._imu, self._mocap, self._book
+        counts = book.counts
+        gap = counts.longest_gap_s
+        if book.key is not None and math.isfinite(book.fix_time):
+            gap = max(gap, book.key[0] - book.fix_time)
+        mocap_rejected = dict(mocap.rejected)
+        mocap_rejected[GATED] = counts.gated
+        return Health(
+            imu_pushed=imu.pushed, imu_accepted=imu.accepted,
+            imu_rejected=MappingProxyType(dict(imu.rejected)), imu_saturated=imu.saturated,
+            imu_dropouts=imu.dropouts, longest_imu_interval_s=imu.longest_interval_s,
+            mocap_pushed=mocap.pushed, mocap_fused=counts.mocap_fused,
+            mocap_occluded=counts.mocap_occluded,
+            mocap_rejected=MappingProxyType(mocap_rejected), gate_rejections=counts.gated,
+            reacquisitions=counts.reacquisitions, time_tracked_s=counts.time_tracked_s,
+            time_bridged_s=counts.time_bridged_s, time_lost_s=counts.time_lost_s,
+            longest_gap_s=gap, lost_transitions=counts.lost_transitions,
+            state_resets=counts.state_resets, replays=self._replays, resets=self._resets,
+        )
+
+    def reset(self) -> None:
+        """Forget the state and the stream history, as if newly constructed; the health
+        counters keep counting (``health.resets`` counts the calls)."""
+        self._resets += 1
+        self._estimator = self._new_estimator()
+        self._start_streams(keep_counters=True)
+
+    def snapshot(self) -> TrackerSnapshot:
+        """A deep copy of the whole state (estimator, stream history, buffers, counters).
+
+        :meth:`restore` into a tracker built with the same arguments continues bit-exactly.
+        """
+        state = copy.deepcopy({
+            "estimator": self._estimator.snapshot(), "book": self._book, "imu": self._imu,
+            "mocap": self._mocap, "log": self._log, "checkpoints": self._checkpoints,
+            "resets": self._resets, "replays": self._replays,
+        })
+        newest = math.nan if self._book.key is None else self._book.key[0]
+        return TrackerSnapshot(method=self.method, t=newest,
+                               _configuration=self._configuration(), _state=state)
+
+    def restore(self, snapshot: TrackerSnapshot) -> None:
+        """Continue from ``snapshot`` (taken from a tracker built with the same arguments).
+
+        Raises:
+            ValueError: not a :class:`TrackerSnapshot`, or taken with other arguments.
+        """
+        if not isinstance(snapshot, TrackerSnapshot):
+            raise ValueError(f"restore: expected a TrackerSnapshot, got "
+                             f"{type(snapshot).__name__}")
+        if snapshot._configuration != self._configuration():
+            raise ValueError("restore: expected a snapshot from a tracker with the same method, "
+                             "parameters, mounting and options; got one from another")
+        state = copy.deepcopy(snapshot._state)
+        self._estimator.restore(state["estimator"])
+        self._book = state["book"]
+        self._imu, self._mocap = state["imu"], state["mocap"]
+        self._log, self._checkpoints = state["log"], state["checkpoints"]
+        self._resets, self._replays = state["resets"], state["replays"]
+
+    def __repr__(self) -> str:
+        newest = None if self._book.key is None else self._book.key[0]
+        return f"Tracker(method={self.method!r}, t={newest!r}, status={self._book.status!r})"
+
+    # ---- internals ---------------------------------------------------------------------------
+
+    def _configuration(self) -> tuple:
+        return (self.method, repr(self.params), self.imu_profile, self.options,
+                tuple(self._imu_to_body), tuple(self._gravity),
+                None if self._lever_arm is None else tuple(self._lever_arm))
+
+    def _start_streams(self, *, keep_counters: bool) -> None:
+        """Empty stream history, bookkeeping, event log and checkpoints (counters optional)."""
+        if keep_counters:
+            for stream in (self._imu, self._mocap):
+                stream.last_t, stream.last_values = -math.inf, None
+            self._book = _Book(counts=self._book.counts)
+        else:
+            self._imu = _Stream(rejected=dict.fromkeys(IMU_REJECTIONS, 0))
+            self._mocap = _Stream(rejected=dict.fromkeys(MOCAP_REJECTIONS, 0))
+            self._book = _Book()
+        self._log = deque()
+        self._checkpoints = deque()
+        if self.options.max_delay_s > 0:
+            self._checkpoints.append(_Checkpoint((-math.inf, -1), self._estimator.snapshot(),
+                                                 self._book.copy()))
+
+    def _reject(self, stream: _Stream, reason: str) -> PushOutcome:
+        stream.rejected[reason] += 1
+        return PushOutcome(False, reason)
+
+    def _order_rejection(self, stream: _Stream, t: float,
+                         values: tuple[NDArray, NDArray]) -> PushOutcome:
+        """The rejection of a time not after the stream's last one (``t <= stream.last_t``)."""
+        if t < stream.last_t or stream.last_values is None:
+            return self._reject(stream, OUT_OF_ORDER)
+        same = all(np.array_equal(new, old, equal_nan=True)
+                   for new, old in zip(values, stream.last_values, strict=True))
+        return self._reject(stream, DUPLICATE if same else CONFLICTING_DUPLICATE)
+
+    def _fuse(self, event: tuple) -> str | None:
+        """Fuse a validated event in time order; its outcome, or None if too late to insert.
+
+        An event behind the newest fused one is inserted by restoring the newest checkpoint
+        before it and fusing the logged events after that checkpoint again, in time order.
+        """
+        key = (event[0], event[1])
+        book = self._book
+        if book.key is None or key > book.key:
+            result = self._process(event)
+            self._log_and_checkpoint(event)
+            return result
+        if event[0] < book.key[0] - self.options.max_delay_s:
+            return None
+        checkpoints = self._checkpoints
+        index = next((i for i in range(len(checkpoints) - 1, -1, -1)
+                      if checkpoints[i].key < key), None)
+        if index is None:
+            return None
+        checkpoint = checkpoints[index]
+        while len(checkpoints) > index + 1:
+            checkpoints.pop()
+        self._estimator.restore(copy.deepcopy(checkpoint.estimator))
+        self._book = checkpoint.book.copy()
+        later = []
+        while self._log and (self._log[-1][0], self._log[-1][1]) > checkpoint.key:
+            later.append(self._log.pop())
+        later.append(event)
+        later.sort(key=lambda logged: (logged[0], logged[1]))
+        self._replays += 1
+        outcome: str | None = None
+        for logged in later:
+            result = self._process(logged)
+            if logged is event:
+                outcome = result
+            self._log_and_checkpoint(logged)
+        return outcome
+
+    def _process(self, event: tuple) -> str:
+        """Run one event (in time order) through the estimator and the bookkeeping.
+
+        ``event`` is ``(t, stream, first, second, saturated)``: accelerometer (3,) array and
+        gyroscope 3-tuple for the IMU, position (3,) and quaternion (4,) (NaN when absent) for
+        the mocap.
+
+        Inputs are validated, so over a normal interval a finite state stays finite. After a
+        long interval (a dropout) or a saturated sample the model may overflow; the state is
+        then checked (and after every mocap frame), and a non-finite state or a numerical error
+        restarts the estimator, which takes this event as its first.
+        """
+        t, stream = event[0], event[1]
+        book = self._book
+        previous = t if book.key is None else book.key[0]
+        if t > previous:
+            self._account(previous, t)
+            if book.status != LOST and self._status_at(t) == LOST:
+                book.counts.lost_transitions += 1
+                book.status = LOST
+        large = event[4] or t - previous > self._estimator.imu_dropout_s
+        try:
+            if large:
+                with np.errstate(all="ignore"):
+                    outcome = self._apply(event)
+            else:
+                outcome = self._apply(event)
+            failed = (large or stream == _MOCAP) and not self._estimator.finite()
+        except _NUMERICAL_ERRORS:
+            failed = True
+        if failed:
+            self._estimator = self._new_estimator()
+            book.counts.state_resets += 1
+            book.fix_time = -math.inf
+            book.last_frame_fused = False
+            outcome = self._apply(event)  # a fresh estimator: holds the sample or initialises
+        if stream == _MOCAP:
+            self._count_fix(t, outcome)
+        book.key = (t, stream)
+        status = self._status_at(t)
+        if status == LOST and book.status != LOST:
+            book.counts.lost_transitions += 1
+        book.status = status
+        return outcome
+
+    def _apply(self, event: tuple) -> str:
+        """The estimator's step for one event; its outcome (``accepted`` for an IMU sample)."""
+        if event[1] == _IMU:
+            self._estimator.predict(event[0], event[2], event[3])
+            return ACCEPTED
+        position, quaternion = event[2], event[3]
+        return self._estimator.update(event[0], None if math.isnan(position[0]) else position,
+                                      None if math.isnan(quaternion[0]) else quaternion)
+
+    def _count_fix(self, t: float, outcome: str) -> None:
+        """Fix bookkeeping after a mocap frame's outcome."""
+        book = self._book
+        counts = book.counts
+        if outcome in (ACCEPTED, REACQUIRED):
+            counts.mocap_fused += 1
+            counts.reacquisitions += outcome == REACQUIRED
+            if book.fix_time != -math.inf:
+                counts.longest_gap_s = max(counts.longest_gap_s, t - book.fix_time)
+            book.fix_time = t
+            book.last_frame_fused = True
+        else:
+            if outcome == OCCLUDED:
+                counts.mocap_occluded += 1
+            else:
+                counts.gated += 1
+            book.last_frame_fused = False
+
+    def _status_at(self, t: float) -> str:
+        book = self._book
+        since = t - book.fix_time
+        if book.last_frame_fused and since <= self.options.fix_timeout_s:
+            return TRACKED  # fast path of tracking_status (fix_timeout_s < max_bridge_s)
+        return tracking_status(since, book.last_frame_fused,
+                               fix_timeout_s=self.options.fix_timeout_s,
+                               max_bridge_s=self.max_bridge_s)
+
+    def _account(self, start: float, end: float) -> None:
+        """Add the time from ``start`` to ``end`` (no fix inside) to the status durations."""
+        book = self._book
+        if book.last_frame_fused and end - book.fix_time <= self.options.fix_timeout_s:
+            book.counts.time_tracked_s += end - start  # fast path of status_durations
+            return
+        tracked, bridged, lost = status_durations(
+            start, end, book.fix_time, book.last_frame_fused,
+            fix_timeout_s=self.options.fix_timeout_s, max_bridge_s=self.max_bridge_s)
+        book.counts.time_tracked_s += tracked
+        book.counts.time_bridged_s += bridged
+        book.counts.time_lost_s += lost
+
+    def _log_and_checkpoint(self, event: tuple) -> None:
+        """Keep the event and a checkpoint for replays within ``max_delay_s``; prune older.
+
+        A checkpoint follows every mocap frame, and IMU samples when the last checkpoint is
+        ``checkpoint_interval_s`` old. The newest checkpoint at or before ``t - max_delay_s``
+        and everything after it are kept; the log holds the events after the oldest one.
+        """
+        delay = self.options.max_delay_s
+        if delay <= 0:
+            return
+        t = event[0]
+        log = self._log
+        log.append(event)
+        checkpoints = self._checkpoints
+        if event[1] == _MOCAP or t - checkpoints[-1].key[0] >= self.options.checkpoint_interval_s:
+            checkpoints.append(_Checkpoint((t, event[1]), self._estimator.snapshot(),
+                                           self._book.copy()))
+            while len(checkpoints) > 1 and checkpoints[1].key[0] <= t - delay:
+                checkpoints.popleft()
+        oldest = checkpoints[0].key
+        while log and (log[0][0], log[0][1]) <= oldest:
+            log.popleft()
+
+
+CONFIG_KEYS: Final = ("imu_to_body", "gravity", "method", "imu", "lever_arm", "parameters",
+                      "tracker")
+"""Keys of a tracker YAML file (:meth:`Tracker.from_yaml`)."""
+
+
+def _parameters(method: str, params: Any, profile: ImuProfile) -> Any:
+    """The estimator's parameter object from an object, a mapping or None."""
+    if method == "kalman":
+        from kfusion.kalman import KalmanParameters
+
+        if params is None:
+            return KalmanParameters.from_profiles(profile)
+        if isinstance(params, KalmanParameters):
+            return params
+        if isinstance(params, Mapping):
+            values = dict(params)
+            values.setdefault("imu", profile)
+            return KalmanParameters.from_mapping(values)
+        raise ValueError(f"Tracker: params: expected KalmanParameters or a mapping for method "
+                         f"'kalman', got {type(params).__name__}")
+    from kfusion.baseline import BaselineParameters
+
+    if params is None:
+        return BaselineParameters()
+    if isinstance(params, BaselineParameters):
+        return params
+    if isinstance(params, Mapping):
+        return BaselineParameters.from_mapping(params)
+    raise ValueError(f"Tracker: params: expected BaselineParameters or a mapping for method "
+                     f"'baseline', got {type(params).__name__}")
+
+
+def _finite_reading(reading: _Reading, has_covariance: bool) -> bool:
+    """Position finite, and the covariance too if the method has one."""
+    if not np.isfinite(reading.position).all():
+        return False
+    return not has_covariance or bool(np.isfinite(reading.covariance).all())
+
