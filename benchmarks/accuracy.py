@@ -77,10 +77,11 @@ def main() -> int:
     columns = ["samples", "rms_mm", "max_mm", "baseline_over_method", "coverage_3sigma",
                "lost_fraction", "imu_per_second", "slowest_run_s"]
     for gap_label, gap_range in GAP_RANGES.items():
-        for data_label, sets in (
-            (f"simulated paper scenarios, mpu9255, {seeds} seeds", simulated_sets(seeds, gap_range)),
-            ("BROAD trials, mocap every 3rd sample", broad_sets(gap_range, trials)),
-        ):
+        data = {
+            f"simulated paper scenarios, mpu9255, {seeds} seeds": simulated_sets(seeds, gap_range),
+            "BROAD trials, mocap every 3rd sample": broad_sets(gap_range, trials),
+        }
+        for data_label, sets in data.items():
             table, _ = evaluate(sets, f"{data_label}, {gap_label}")
             print(f"\n### {data_label}, gaps {gap_label} ({len(sets)} recordings)\n")
             print("```")

@@ -174,7 +174,8 @@ def metrics_from_errors(errors: GapErrors) -> dict[str, float]:
     }
 
 
-def gap_metrics(result: TrackResult, truth_position: NDArray, gap_mask: NDArray) -> dict[str, float]:
+def gap_metrics(result: TrackResult, truth_position: NDArray, gap_mask: NDArray
+                ) -> dict[str, float]:
     """:func:`metrics_from_errors` of :func:`gap_errors` for one run."""
     return metrics_from_errors(gap_errors(result, truth_position, gap_mask))
 

@@ -196,3 +196,56 @@ def sweep_lines_figure(table: pd.DataFrame, *, x: str, value: str, hue: str = "m
     if title:
         figure.suptitle(title)
     return _save(figure, path)
+
+
+def gap_zoom_figure(
+    t: NDArray[np.float64],
+    measured: NDArray[np.float64],
+    results: Mapping[str, TrackResult],
+    gap_mask: NDArray[np.bool_],
+    *,
+    truth: NDArray[np.float64] | None = None,
+    axis: int = 1,
+    gaps: int = 6,
+    margin_s: float = 0.15,
+    title: str = "",
+    path: str | Path | None = None,
+) -> Figure:
+    """Small multiples of the first ``gaps`` gaps: error against the truth (or the measured
+    mocap) in mm along ``axis``, per method, with the 3-sigma band where the method gives one.
+
+    Millimetre errors are invisible on a trajectory spanning 0.8 m; this zooms in on them.
+    Shapes as in :func:`trajectory_figure`.
+    """
+    t = np.asarray(t, dtype=float)
+    reference = np.asarray(truth if truth is not None else measured, dtype=float)[:, axis]
+    runs = occlusion_runs(~np.asarray(gap_mask, dtype=bool))[:gaps]
+    columns = min(3, max(len(runs), 1))
+    rows = max(1, -(-len(runs) // columns))
+    figure, plot_axes = plt.subplots(rows, columns, figsize=(4 * columns, 2.8 * rows),
+                                     squeeze=False)
+    for index, (start, stop) in enumerate(runs):
+        ax = plot_axes[index // columns, index % columns]
+        shown = (t >= t[start] - margin_s) & (t <= t[stop - 1] + margin_s)
+        ax.axvspan(t[max(start - 1, 0)], t[min(stop, len(t) - 1)], color="0.9", lw=0)
+        for name, result in results.items():
+            colour = METHOD_COLOURS.get(name)
+            error = 1000 * (np.asarray(result.position)[:, axis] - reference)
+            ax.plot(t[shown], error[shown], color=colour, lw=1.3, label=name)
+            sigma = 1000 * np.asarray(result.std, dtype=float)[:, axis]
+            if np.isfinite(sigma[shown]).any():
+                ax.fill_between(t[shown], -3 * sigma[shown], 3 * sigma[shown], color=colour,
+                                alpha=0.12, lw=0)
+        ax.axhline(0, color="k", lw=0.6)
+        ax.set_title(f"gap {index + 1}: {t[stop - 1] - t[start] + (t[1] - t[0]):.2f} s",
+                     fontsize=9)
+        ax.set_xlabel("t (s)", fontsize=8)
+        ax.set_ylabel(f"{AXIS_NAMES[axis]} error (mm)", fontsize=8)
+        ax.grid(alpha=0.3)
+    for index in range(len(runs), rows * columns):
+        plot_axes[index // columns, index % columns].axis("off")
+    plot_axes[0, 0].legend(fontsize=7)
+    if title:
+        figure.suptitle(title)
+    figure.tight_layout()
+    return _save(figure, path)

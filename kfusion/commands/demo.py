@@ -13,9 +13,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from kfusion.commands.stream import stream_lines
 from kfusion.experiment import ScoredRecording, format_table, run_method, summary_table
 from kfusion.methods import METHODS
-from kfusion.plots import error_by_gap_length_figure, trajectory_figure
+from kfusion.plots import error_by_gap_length_figure, gap_zoom_figure, trajectory_figure
 from kfusion.recording import write_recording
 from kfusion.track import write_track_csv
 
@@ -61,8 +62,17 @@ def run(args: argparse.Namespace) -> int:
                       window=(first_gap - 3.0, first_gap + 5.0),
                       title="arm lift, MPU9255: estimates inside gaps",
                       path=out / "arm_lift_trajectory.png")
+    gap_zoom_figure(simulation.truth.t, simulation.recording.mocap.position, results,
+                    scored.gap_mask, truth=simulation.truth.position, axis=1,
+                    title="error along y inside the first gaps (band: 3 sigma)",
+                    path=out / "gap_errors_zoom.png")
     error_by_gap_length_figure(per_gap, title="max error per gap", path=out / "error_by_gap.png")
     print()
+    print("Streaming the same recording through kfusion.Tracker (what safety software sees), "
+          "around the first gap:")
+    for line in stream_lines(simulation.recording, count=8, every=5, start=first_gap - 0.05):
+        print("  " + line)
+    print()
     print(f"wrote {out}/: arm_lift/ (recording), track_*.csv, gap_errors.csv, "
-          "per_gap_errors.csv, arm_lift_trajectory.png, error_by_gap.png")
+          "per_gap_errors.csv, arm_lift_trajectory.png, gap_errors_zoom.png, error_by_gap.png")
     return 0
