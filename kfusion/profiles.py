@@ -119,18 +119,21 @@ UM7 = ImuProfile(
 )
 
 # Real BROAD recordings (myon aktos-t), used for the Kalman defaults on real data. The sensor's
-# datasheet is not public; noise density measured on the still parts of the trials
-# (accelerometer ~ 1.2 mg/sqrt(Hz) including vibration, gyroscope ~ 0.01 dps/sqrt(Hz)).
+# datasheet is not public; noise densities measured on the still parts of the seven trials here
+# (longest run with movement == 0, 35-44 s each): median of the Welch PSD between 5 and 100 Hz,
+# density = sqrt(PSD_one_sided / 2), which matches std / sqrt(rate). Per axis the accelerometer
+# gave 245-263 / 267-303 / 398-442 ug/sqrt(Hz) (x / y / z) and the gyroscope 0.0049-0.0077
+# dps/sqrt(Hz); the largest axis, rounded up, is taken for all three.
 BROAD_IMU = ImuProfile(
     name="broad",
-    accelerometer_noise_density=1.2 * MILLI_G,
+    accelerometer_noise_density=450 * MICRO_G,
     accelerometer_bias_random_walk=0.13 * MILLI_G,
     accelerometer_turn_on_bias=20 * MILLI_G,
     accelerometer_scale_error=0.01,
     accelerometer_cross_axis=0.0067,
     accelerometer_range=16 * STANDARD_GRAVITY,
     accelerometer_resolution=32 * STANDARD_GRAVITY / 2**16,
-    gyroscope_noise_density=0.01 * DEGREE,
+    gyroscope_noise_density=0.008 * DEGREE,
     gyroscope_bias_random_walk=0.002 * DEGREE,
     gyroscope_turn_on_bias=1 * DEGREE,
     gyroscope_scale_error=0.01,

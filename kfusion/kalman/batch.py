@@ -1,0 +1,202 @@
+"""Run the streaming filter over a whole recording: :func:`filter_recording` (method ``kalman``).
+
+Events are merged in time order; at equal timestamps the IMU sample comes first, then the mocap
+frame. The output has one row per mocap row (same t): the estimate right after that row was
+processed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kfusion.conventions import BRIDGED, LOST, TRACKED
+from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
+from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
+from kfusion.recording import Recording
+from kfusion.track import TrackResult
+
+
+def resolve_parameters(recording: Recording, params: KalmanParameters | None,
+                       overrides: dict[str, Any]) -> KalmanParameters:
+    """``params`` with ``overrides`` applied, or parameters from the recording's IMU profile
+    (``recording.info.imu``; the default profile when unset) and ``overrides``."""
+    if params is None:
+        return KalmanParameters.from_profiles(recording.info.imu, None, **overrides)
+    if not isinstance(params, KalmanParameters):
+        raise ValueError(f"params: expected KalmanParameters or None, got "
+                         f"{type(params).__name__}")
+    unknown = sorted(set(overrides) - set(FIELD_NAMES))
+    if unknown:
+        raise ValueError(f"KalmanParameters: unknown override {unknown[0]!r}; expected one of "
+                         f"{list(FIELD_NAMES)}")
+    return dataclasses.replace(params, **overrides) if overrides else params
+
+
+def make_fusion(recording: Recording, params: KalmanParameters) -> KalmanFusion:
+    """A :class:`KalmanFusion` configured from the recording's metadata."""
+    info = recording.info
+    return KalmanFusion(info.imu_to_body, info.gravity, params, lever_arm=info.lever_arm)
+
+
+def process_recording(recording: Recording, fusion: KalmanFusion,
+                      on_row: Callable[[int, UpdateOutcome], None]) -> None:
+    """Feed every IMU sample and mocap row to ``fusion`` in time order (IMU first at equal
+    times) and call ``on_row(row, outcome)`` right after each mocap row. IMU samples after the
+    last mocap row are not fed (no output row would use them)."""
+    imu = recording.imu
+    mocap = recording.mocap
+    stamps = imu.t.tolist()
+    latency = fusion.params.imu_latency_s
+    accelerometer = imu.accelerometer.tolist()
+    gyroscope = imu.gyroscope.tolist()
+    finite: list[bool] = np.logical_and(np.isfinite(imu.accelerometer).all(axis=1),
+                                        np.isfinite(imu.gyroscope).all(axis=1)).tolist()
+    visible: list[bool] = mocap.visible.tolist()
+    n = len(stamps)
+    i = 0
+    for row, t in enumerate(mocap.t.tolist()):
+        while i < n and stamps[i] - latency <= t:
+            stamp = stamps[i]
+            if finite[i] and (fusion._imu_stamp is None or stamp > fusion._imu_stamp):
+                f, omega = accelerometer[i], gyroscope[i]
+                fusion._predict_valid(stamp, (f[0], f[1], f[2]), (omega[0], omega[1], omega[2]))
+            else:  # the public path rejects, skips or raises with its message
+                fusion.predict(stamp, accelerometer[i], gyroscope[i])
+            i += 1
+        if visible[row]:
+            outcome = fusion._update_valid(t, mocap.position[row].copy(),
+                                           mocap.quaternion[row].copy())
+        else:
+            outcome = fusion.update(t, None, None)
+        on_row(row, outcome)
+
+
+@dataclass(frozen=True)
+class FilterRun:
+    """Everything the filter produced over a recording, one row per mocap row.
+
+    Attributes:
+        result: the :class:`kfusion.track.TrackResult` (method ``kalman``).
+        x: (m, n) state after each row (n = 9, or 12 with the lever arm; NaN before the first
+            fix).
+        P: (m, n, n) its covariance.
+        output_matrix: (m, 3, n) H at each row: the rigid-body point is ``H x + output_offset``.
+        output_offset: (m, 3) m.
+        outcome: (m,) what the update did (accepted, occluded, gated, reacquired, initialised).
+        nis: (m,) NIS of the row's fix (NaN where none was compared).
+        counters: final :attr:`KalmanFusion.counters`.
+        params: the parameters used.
+    """
+
+    result: TrackResult
+    x: NDArray[np.float64]
+    P: NDArray[np.float64]
+    output_matrix: NDArray[np.float64]
+    output_offset: NDArray[np.float64]
+    outcome: NDArray[np.str_]
+    nis: NDArray[np.float64]
+    counters: dict[str, int]
+    params: KalmanParameters
+
+
+def status_from_fixes(t: NDArray[np.float64], fixed: NDArray[np.bool_], initialised:
+                      NDArray[np.bool_], max_bridge_s: float
+                      ) -> tuple[NDArray[np.str_], NDArray[np.float64]]:
+    """Status and time since the last fix at each row.
+
+    ``tracked`` where the row's fix was used, ``bridged`` while the time since the last used fix
+    is at most ``max_bridge_s``, ``lost`` before the first fix and beyond that horizon.
+    """
+    t = np.asarray(t, dtype=float)
+    fix_time = np.where(fixed, t, -np.inf)
+    last_fix = np.maximum.accumulate(fix_time) if len(t) else fix_time
+    since = t - last_fix
+    status = np.where(fixed, TRACKED, np.where(since <= max_bridge_s, BRIDGED, LOST))
+    status = np.where(initialised, status, LOST)
+    return status.astype(str), since
+
+
+def point_estimates(x: NDArray[np.float64], P: NDArray[np.float64],
+                    output_matrix: NDArray[np.float64], output_offset: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Rigid-body point ``H x + c`` (m, 3) and its 1-sigma per axis ``sqrt(diag(H P H^T))``
+    (m, 3) from per-row states (m, n), covariances (m, n, n) and output maps."""
+    position = np.einsum("mij,mj->mi", output_matrix, x) + output_offset
+    covariance = np.einsum("mij,mjk,mlk->mil", output_matrix, P, output_matrix)
+    std = np.sqrt(np.diagonal(covariance, axis1=1, axis2=2))
+    return position, std
+
+
+class _RowRecorder:
+    """Collects the filter's state and output map after each mocap row."""
+
+    def __init__(self, fusion: KalmanFusion, rows: int) -> None:
+        size = fusion.size
+        self.fusion = fusion
+        self.x = np.full((rows, size), np.nan)
+        self.P = np.full((rows, size, size), np.nan)
+        self.output_matrix = np.zeros((rows, 3, size))
+        self.output_offset = np.zeros((rows, 3))
+        self.outcome = np.empty(rows, dtype=object)
+        self.nis = np.full(rows, np.nan)
+
+    def record(self, row: int, outcome: UpdateOutcome) -> None:
+        fusion = self.fusion
+        self.outcome[row] = outcome.kind
+        self.nis[row] = outcome.nis
+        if fusion.initialised:
+            self.x[row] = fusion._kf.x
+            self.P[row] = fusion._kf.P
+            H, offset = fusion._output_map(fusion._orientation.state.quaternion)
+            self.output_matrix[row] = H
+            self.output_offset[row] = offset
+
+    @property
+    def fixed(self) -> NDArray[np.bool_]:
+        return np.isin(self.outcome.astype(str), USED_OUTCOMES)
+
+    @property
+    def initialised(self) -> NDArray[np.bool_]:
+        return np.isfinite(self.x[:, 0])
+
+
+def run_filter(recording: Recording, params: KalmanParameters | None = None,
+               **overrides: Any) -> FilterRun:
+    """Run :class:`KalmanFusion` over ``recording`` and keep its per-row states and outcomes."""
+    params = resolve_parameters(recording, params, overrides)
+    fusion = make_fusion(recording, params)
+    recorder = _RowRecorder(fusion, len(recording.mocap))
+    process_recording(recording, fusion, recorder.record)
+    status, since = status_from_fixes(recording.mocap.t, recorder.fixed, recorder.initialised,
+                                      params.max_bridge_s)
+    position, std = point_estimates(recorder.x, recorder.P, recorder.output_matrix,
+                                    recorder.output_offset)
+    result = TrackResult(t=np.array(recording.mocap.t), position=position, std=std,
+                         status=status, time_since_fix=since, method="kalman")
+    return FilterRun(result=result, x=recorder.x, P=recorder.P,
+                     output_matrix=recorder.output_matrix, output_offset=recorder.output_offset,
+                     outcome=recorder.outcome.astype(str), nis=recorder.nis,
+                     counters=fusion.counters, params=params)
+
+
+def filter_recording(recording: Recording, params: KalmanParameters | None = None,
+                     **overrides: Any) -> TrackResult:
+    """Method ``kalman``: the streaming filter's estimate at every mocap row.
+
+    Args:
+        recording: the recording (occluded mocap rows are NaN).
+        params: parameters; None builds them from ``recording.info.imu`` (see
+            :meth:`KalmanParameters.from_profiles`).
+        overrides: parameter fields to replace (e.g. ``max_bridge_s=0.5``).
+
+    Returns:
+        TrackResult with one row per mocap row: position (m), 1-sigma per axis from P (m),
+        status tracked/bridged/lost and time since the last accepted fix (s).
+    """
+    return run_filter(recording, params, **overrides).result

@@ -1,0 +1,741 @@
+"""Streaming Kalman tracker on ``filterpy.kalman.KalmanFilter``: asynchronous IMU and mocap events.
+
+:class:`KalmanFusion` holds the position filter of :mod:`kfusion.kalman.model` in a filterpy
+``KalmanFilter`` and the orientation in a :class:`kfusion.kalman.orientation.OrientationTracker`.
+Events are fed in time order:
+
+* ``predict(t, accelerometer, gyroscope)``: advance the state from its time to the sample's time
+  with the specific force and rate taken as linear between the previous sample and this one
+  (first-order hold), then keep this sample;
+* ``update(t, position, quaternion)``: advance to t holding the last sample (zero-order hold: the
+  next one is not known yet), then fuse the mocap fix or skip it (occluded, gated).
+
+Why a first-order hold, when a zero-order hold of the previous sample is the textbook choice:
+IMU samples are values at their instants, and holding the previous one lags the motion by half
+a sample. On the simulator that lag is a systematic error of about 1 mm per 0.3 s gap, five
+times what a model-matched NEES test must resolve; on the BROAD trials the first-order hold cut
+the gap RMS of the two fastest trials by about 30 % (measured, before the latency term below).
+The next sample is known when a predict runs, so this costs no latency.
+
+Any dt works (multi-rate, jittered, dropouts: the covariance grows over the real interval, dt is
+never clamped). At equal timestamps give the IMU sample first, then the mocap frame
+(:func:`kfusion.kalman.filter_recording` does): the fix then lands on a state that holds that
+sample. A sample's time is its timestamp minus ``params.imu_latency_s``; a sample whose time is
+not after the state's (a mocap frame was already fused past it) is kept for the next interval
+without moving the state, and counted as ``imu_late``.
+
+What reaches filterpy is always finite: a NaN/inf IMU sample is rejected and counted without
+touching the state, and a mocap position with any NaN is an occluded frame, which never calls
+``KalmanFilter.update`` (filterpy 2.0 would silently poison the state with a NaN z).
+
+filterpy's ``update`` already uses the Joseph form ``P = (I - K H) P (I - K H)^T + K R K^T``
+(``filterpy/kalman/kalman_filter.py``, ``KalmanFilter.update``); after every predict and update P is
+symmetrised, ``P <- (P + P^T) / 2``. ``predict`` is called with this interval's F, B, Q and
+``u = [f0; f1; g]`` (filterpy 2.0: ``x = F x + B u``, ``P = F P F^T + Q``).
+
+Lever arm (m, body frame, the IMU's position relative to the rigid-body origin):
+
+* given (``lever_arm`` argument, e.g. from ``recording.yaml``): the state is the IMU point,
+  ``p_imu = p_body + R_global_body lever``; fixes are moved to it and outputs moved back;
+* not given and ``params.lever_arm_std > 0``: it is estimated as three more states (12 in all),
+  measured through ``z = p - R_global_body l``. Unknown, it would cost the acceleration difference
+  between the two points, ``alpha x r + omega x (omega x r)``: 0.5 m/s^2 for r = 1 cm at an
+  angular acceleration of 50 rad/s^2, which the BROAD trials reach (measured: estimating it
+  more than halved the gap RMS of the fast-rotation trial, 6.3 -> 2.7 mm, and the estimates
+  came out at 0.5-1 cm);
+* not given and ``lever_arm_std == 0``: ignored (9 states; the IMU point is the rigid-body point).
+
+Outputs are always the rigid-body point (what the mocap measures) and its covariance
+``H P H^T`` with the measurement matrix at the estimated orientation.
+
+Gating: a fix is rejected (``gated``, counted) when its NIS ``y^T S^-1 y`` exceeds the
+chi-square(3) quantile of ``gate_probability`` *and* it lies more than ``gate_min_innovation``
+(1 cm) from the prediction: a marker swap or jump moves the rigid body by centimetres, while an
+impact the IMU cannot sample can make the filter briefly over-confident by a few millimetres, and
+rejecting good fixes then makes it drift away from them. The first fix ``reacquire_after_s`` or
+more after the last accepted one is never gated (re-acquisition); if it would have failed the
+gate, the position and velocity covariance is inflated first (:func:`kfusion.kalman.model.
+reacquisition_inflation`) so that the fix re-initialises the position.
+
+Honest covariance on real sensors (each term derived in :mod:`kfusion.kalman.model`): besides the
+profile's white noise and bias walk, the bias state absorbs the orientation error grown through a
+gap (:func:`~kfusion.kalman.model.orientation_leak_variance`) and the accelerometer's scale and
+cross-axis error (:func:`~kfusion.kalman.model.scale_error_variance`), and sample-to-sample jumps
+beyond the noise (impacts) count as acceleration noise
+(:func:`~kfusion.kalman.model.interpolation_variance`). A propagation that overflows (an
+absurd interval) forgets the state (``resets``): the output is ``lost`` until the next fix.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+from numpy.typing import ArrayLike, NDArray
+
+from kfusion.conventions import BRIDGED, LOST, TRACKED
+from kfusion.kalman import model
+from kfusion.kalman.orientation import (
+    OrientationState,
+    OrientationTracker,
+    Quaternion,
+    matrix_from_quaternion,
+    normalise,
+    quaternion_product,
+)
+from kfusion.kalman.parameters import KalmanParameters
+
+# update outcomes
+ACCEPTED: Final = "accepted"
+"""The fix passed the gate and was fused."""
+OCCLUDED: Final = "occluded"
+"""No usable position (None or NaN): nothing fused."""
+GATED: Final = "gated"
+"""The fix failed the chi-square gate (marker swap, jump): rejected, counted."""
+REACQUIRED: Final = "reacquired"
+"""First fix at least ``reacquire_after_s`` after the last accepted one: fused without gating."""
+INITIALISED: Final = "initialised"
+"""First fix ever: the state was initialised from it."""
+USED_OUTCOMES: Final = (ACCEPTED, REACQUIRED, INITIALISED)
+
+# predict outcomes
+PREDICTED: Final = "predicted"
+"""The state was advanced to the sample's time (or the sample kept, if late)."""
+DUPLICATE: Final = "duplicate"
+"""Same timestamp and values as the previous IMU sample: skipped."""
+REJECTED: Final = "rejected"
+"""NaN or inf in the sample: skipped, state untouched."""
+
+COUNTER_NAMES: Final = (
+    "predictions", "imu_rejected", "imu_duplicates", "imu_dropouts", "imu_late",
+    "accelerometer_saturated", "gyroscope_saturated",
+    "updates", "occluded", "gated", "reacquired", "initialised", "no_orientation", "resets",
+)
+"""Keys of :attr:`KalmanFusion.counters`. ``updates`` counts every fix fused (accepted,
+reacquired and initialised); ``no_orientation`` counts fixes without a quaternion before the
+orientation was known (treated as occluded); ``imu_dropouts`` intervals longer than
+``imu_dropout_s``; ``imu_late`` samples not after the state's time; ``resets`` propagations that
+overflowed (the state is then forgotten and re-initialised by the next fix); ``imu_rejected``
+samples with NaN, inf or a value beyond :data:`kfusion.kalman.model.IMPLAUSIBLE_SAMPLE`."""
+
+Vector3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class UpdateOutcome:
+    """What :meth:`KalmanFusion.update` did with a mocap frame.
+
+    Attributes:
+        t: frame time, s.
+        kind: one of accepted, occluded, gated, reacquired, initialised.
+        nis: normalised innovation squared ``y^T S^-1 y`` (3 dof) before fusing; NaN when there
+            was nothing to compare (occluded, initialised).
+    """
+
+    t: float
+    kind: str
+    nis: float
+
+    @property
+    def accepted(self) -> bool:
+        """True when the fix was fused (accepted, reacquired or initialised)."""
+        return self.kind in USED_OUTCOMES
+
+
+@dataclass(frozen=True)
+class FilterStep:
+    """The estimate at one time.
+
+    Attributes:
+        t: time, s.
+        position: (3,) rigid-body point, m, global frame; NaN before the first fix.
+        position_covariance: (3, 3) its covariance, m^2.
+        std: (3,) 1-sigma of the position per axis, m.
+        velocity: (3,) of the IMU point, m/s, global frame.
+        bias: (3,) accelerometer bias, m/s^2, IMU frame.
+        lever_arm: (3,) lever arm in use (estimated, given, or zeros), m, body frame.
+        orientation: (4,) ``q_global_imu`` [w, x, y, z].
+        covariance: (n, n) covariance of the state (n = 9, or 12 with the lever-arm states).
+        status: ``tracked``, ``bridged`` or ``lost`` (see :mod:`kfusion.conventions`).
+        time_since_fix: s since the last accepted fix (inf before the first).
+        nis: NIS of the last mocap frame compared (NaN if none).
+    """
+
+    t: float
+    position: NDArray[np.float64]
+    position_covariance: NDArray[np.float64]
+    std: NDArray[np.float64]
+    velocity: NDArray[np.float64]
+    bias: NDArray[np.float64]
+    lever_arm: NDArray[np.float64]
+    orientation: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    status: str
+    time_since_fix: float
+    nis: float
+
+
+@dataclass(frozen=True)
+class KalmanSnapshot:
+    """Everything :meth:`KalmanFusion.restore` needs to continue a run bit-exactly."""
+
+    configuration: tuple[Any, ...]
+    x: NDArray[np.float64]
+    P: NDArray[np.float64]
+    orientation: OrientationState
+    time: float | None
+    imu_stamp: float | None
+    imu_time: float | None
+    accelerometer: Vector3 | None
+    gyroscope: Vector3 | None
+    accelerometer_extra_variance: float
+    gyroscope_extra_variance: float
+    accelerometer_low_pass: Vector3 | None
+    initialised: bool
+    last_fix: float | None
+    last_nis: float
+    counters: dict[str, int] = field(default_factory=dict)
+
+
+def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
+    array = np.asarray(value, dtype=float)
+    if array.shape != (size,):
+        raise ValueError(f"{name}: expected shape ({size},), got {array.shape}")
+    return array
+
+
+def _clipped(sample: Vector3, sensor_range: float) -> Vector3:
+    """Each axis limited to ``[-range, range]``: what a saturated sensor reports."""
+    return (min(max(sample[0], -sensor_range), sensor_range),
+            min(max(sample[1], -sensor_range), sensor_range),
+            min(max(sample[2], -sensor_range), sensor_range))
+
+
+def _squared_distance(a: Vector3, b: Vector3) -> float:
+    dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
+    return dx * dx + dy * dy + dz * dz
+
+
+class KalmanFusion:
+    """Streaming IMU + mocap position filter (see the module docstring).
+
+    Args:
+        imu_to_body: (4,) ``q_body_imu`` [w, x, y, z] (``recording.yaml``'s ``imu_to_body``).
+        gravity: (3,) gravity in the global frame, m/s^2.
+        params: noise model and behaviour.
+        lever_arm: optional (3,) IMU position in the body frame relative to the rigid-body
+            origin, m. None: estimated when ``params.lever_arm_std > 0``, else ignored.
+    """
+
+    def __init__(self, imu_to_body: ArrayLike, gravity: ArrayLike, params: KalmanParameters,
+                 lever_arm: ArrayLike | None = None) -> None:
+        if not isinstance(params, KalmanParameters):
+            raise ValueError(f"params: expected KalmanParameters, got {type(params).__name__}")
+        q_body_imu = _vector(imu_to_body, 4, "imu_to_body")
+        if not np.isfinite(q_body_imu).all() or abs(np.linalg.norm(q_body_imu) - 1.0) > 1e-3:
+            raise ValueError(f"imu_to_body: expected a finite unit quaternion [w, x, y, z], got "
+                             f"{q_body_imu.tolist()}")
+        self._gravity = _vector(gravity, 3, "gravity")
+        if not np.isfinite(self._gravity).all():
+            raise ValueError(f"gravity: expected 3 finite numbers (m/s^2), got "
+                             f"{self._gravity.tolist()}")
+        self._lever_arm: NDArray[np.float64] | None = None
+        if lever_arm is not None:
+            self._lever_arm = _vector(lever_arm, 3, "lever_arm")
+            if not np.isfinite(self._lever_arm).all():
+                raise ValueError(f"lever_arm: expected 3 finite numbers (m), got "
+                                 f"{self._lever_arm.tolist()}")
+        self.params = params
+        self.size = model.state_size(lever_arm is None and params.lever_arm_std > 0)
+        self._q_body_imu: Quaternion = normalise(
+            (float(q_body_imu[0]), float(q_body_imu[1]), float(q_body_imu[2]),
+             float(q_body_imu[3])))
+        self._R_imu_body = matrix_from_quaternion(self._q_body_imu).T
+        self._gate = model.gate_threshold(params.gate_probability)
+
+        self._kf = KalmanFilter(dim_x=self.size, dim_z=model.MEASUREMENT_SIZE,
+                                dim_u=model.CONTROL_SIZE)
+        self._kf.x = np.zeros(self.size)
+        self._kf.P = np.eye(self.size)
+        self._kf.R = model.measurement_noise(params.mocap_position_noise)
+        self._H = model.measurement_matrix(self.size, np.eye(3))
+        self._F = np.eye(self.size)
+        self._B = np.zeros((self.size, model.CONTROL_SIZE))
+        self._Q = np.zeros((self.size, self.size))
+        self._u = model.control_input(np.zeros(3), np.zeros(3), self._gravity)
+
+        self._orientation = OrientationTracker(
+            params.gyroscope_noise_density, params.gyroscope_bias_random_walk,
+            params.mocap_orientation_noise, params.initial_gyroscope_bias_std,
+            params.gyroscope_scale_error)
+        self._R_current: NDArray[np.float64] | None = None  # cache of the orientation's matrix
+        self._time: float | None = None
+        self._imu_stamp: float | None = None  # raw timestamp of the held sample
+        self._imu_time: float | None = None  # its time on the mocap clock
+        self._accelerometer: Vector3 | None = None
+        self._gyroscope: Vector3 | None = None
+        self._accelerometer_extra_variance = 0.0
+        self._gyroscope_extra_variance = 0.0
+        self._accelerometer_low_pass: Vector3 | None = None
+        self._initialised = False
+        self._last_fix: float | None = None
+        self._last_nis = math.nan
+        self._counters = dict.fromkeys(COUNTER_NAMES, 0)
+        # smoother support (see kfusion.kalman.smoother): product of the transitions since the
+        # smoother last reset it, and the prior of the last fused fix
+        self._interval: NDArray[np.float64] | None = None
+        self._prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+
+    # ------------------------------------------------------------------ public state
+
+    @property
+    def x(self) -> NDArray[np.float64]:
+        """(n,) copy of the state ``[p, v, b]`` or ``[p, v, b, l]`` (p, v of the IMU point)."""
+        return np.array(self._kf.x, dtype=float)
+
+    @property
+    def P(self) -> NDArray[np.float64]:  # noqa: N802 (the standard Kalman symbol)
+        """(n, n) copy of the state covariance."""
+        return np.array(self._kf.P, dtype=float)
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Copy of the event counts (keys :data:`COUNTER_NAMES`)."""
+        return dict(self._counters)
+
+    @property
+    def time(self) -> float | None:
+        """Time of the state, s (None before the first event)."""
+        return self._time
+
+    @property
+    def initialised(self) -> bool:
+        """True once a fix has initialised the position."""
+        return self._initialised
+
+    @property
+    def estimates_lever_arm(self) -> bool:
+        """True when the lever arm is part of the state (12 states)."""
+        return self.size == model.LEVER_SIZE
+
+    # ------------------------------------------------------------------ events
+
+    def predict(self, t: float, accelerometer: ArrayLike, gyroscope: ArrayLike) -> str:
+        """Advance to the sample's time, then keep the sample for the next interval.
+
+        Args:
+            t: sample timestamp, s; must be after the previous sample's.
+            accelerometer: (3,) specific force, m/s^2, IMU frame.
+            gyroscope: (3,) angular rate, rad/s, IMU frame.
+
+        Returns:
+            ``predicted``; ``duplicate`` for a repeat of the previous sample (same t and values);
+            ``rejected`` for a sample with NaN/inf (counted, state untouched).
+
+        Raises:
+            ValueError: wrong shapes, non-finite t, or t not after the previous sample.
+        """
+        t = float(t)
+        accelerometer_array = _vector(accelerometer, 3, "accelerometer")
+        gyroscope_array = _vector(gyroscope, 3, "gyroscope")
+        if not math.isfinite(t):
+            raise ValueError(f"predict: expected a finite time in s, got {t!r}")
+        if not (np.isfinite(accelerometer_array).all() and np.isfinite(gyroscope_array).all()):
+            self._counters["imu_rejected"] += 1
+            return REJECTED
+        f = (float(accelerometer_array[0]), float(accelerometer_array[1]),
+             float(accelerometer_array[2]))
+        omega = (float(gyroscope_array[0]), float(gyroscope_array[1]), float(gyroscope_array[2]))
+        if self._imu_stamp is not None and t <= self._imu_stamp:
+            if (t == self._imu_stamp
+                    and _clipped(f, self.params.accelerometer_range) == self._accelerometer
+                    and _clipped(omega, self.params.gyroscope_range) == self._gyroscope):
+                self._counters["imu_duplicates"] += 1
+                return DUPLICATE
+            raise ValueError(f"predict: timestamp {t!r} s is not after the previous IMU sample "
+                             f"({self._imu_stamp!r} s); expected strictly increasing times")
+        return self._predict_valid(t, f, omega)
+
+    def update(self, t: float, position: ArrayLike | None,
+               quaternion: ArrayLike | None = None) -> UpdateOutcome:
+        """Advance to t (s) holding the last IMU sample, then fuse a mocap frame.
+
+        Args:
+            t: frame time, s; not before the state's time.
+            position: (3,) rigid-body position, m, global frame; None or any NaN: occluded.
+            quaternion: (4,) ``q_global_body`` [w, x, y, z]; None or NaN: no orientation (the
+                position is still used once the orientation is known).
+
+        Returns:
+            :class:`UpdateOutcome`. A fix is gated when its NIS exceeds the chi-square quantile
+            of ``gate_probability`` and its innovation is longer than ``gate_min_innovation``,
+            unless it comes ``reacquire_after_s`` or more after the last
+            accepted fix: then it is accepted as a re-acquisition (after inflating the position
+            and velocity covariance if it would have failed the gate).
+        """
+        t = float(t)
+        if not math.isfinite(t):
+            raise ValueError(f"update: expected a finite time in s, got {t!r}")
+        if self._time is not None and t < self._time:
+            raise ValueError(f"update: timestamp {t!r} s is before the filter's time "
+                             f"({self._time!r} s); expected events in time order")
+        z = None if position is None else _vector(position, 3, "position")
+        q_global_body = None if quaternion is None else _vector(quaternion, 4, "quaternion")
+        if z is not None and not np.isfinite(z).all():
+            z = None
+        if q_global_body is not None:
+            norm = float(np.linalg.norm(q_global_body))
+            if not math.isfinite(norm) or norm == 0.0:
+                q_global_body = None
+        return self._update_valid(t, z, q_global_body)
+
+    def estimate(self, t: float | None = None) -> FilterStep:
+        """The estimate at t (s; default: the state's time). A later t extrapolates holding the
+        last IMU sample, without changing the state; an earlier t is a ValueError."""
+        if self._time is None:
+            raise ValueError("estimate: no event yet; feed predict() or update() first")
+        t = self._time if t is None else float(t)
+        if not t >= self._time:
+            raise ValueError(f"estimate: time {t!r} s is before the state's time "
+                             f"({self._time!r} s); expected t >= {self._time!r}")
+        x, P, quaternion = self._extrapolate(t)
+        nan3 = np.full(3, np.nan)
+        if not self._initialised:
+            return FilterStep(t, nan3, np.full((3, 3), np.nan), nan3, nan3, nan3, nan3,
+                              np.asarray(quaternion), np.full(P.shape, np.nan), LOST, math.inf,
+                              self._last_nis)
+        H, offset = self._output_map(quaternion)
+        position = H @ x + offset
+        position_covariance = H @ P @ H.T
+        since = t - self._last_fix if self._last_fix is not None else math.inf
+        if since == 0.0:
+            status = TRACKED
+        elif since <= self.params.max_bridge_s:
+            status = BRIDGED
+        else:
+            status = LOST
+        return FilterStep(
+            t, position, position_covariance, np.sqrt(np.diag(position_covariance)),
+            x[model.VELOCITY].copy(), x[model.BIAS].copy(), self._lever_in_use(x),
+            np.asarray(quaternion), P, status, since, self._last_nis)
+
+    # ------------------------------------------------------------------ save / restore
+
+    def _configuration(self) -> tuple[Any, ...]:
+        lever = None if self._lever_arm is None else tuple(self._lever_arm.tolist())
+        return (self.params, self._q_body_imu, tuple(self._gravity.tolist()), lever)
+
+    def snapshot(self) -> KalmanSnapshot:
+        """A copy of the whole state; :meth:`restore` continues from it bit-exactly."""
+        return KalmanSnapshot(
+            configuration=self._configuration(),
+            x=np.array(self._kf.x, dtype=float),
+            P=np.array(self._kf.P, dtype=float),
+            orientation=self._orientation.state.copy(),
+            time=self._time,
+            imu_stamp=self._imu_stamp,
+            imu_time=self._imu_time,
+            accelerometer=self._accelerometer,
+            gyroscope=self._gyroscope,
+            accelerometer_extra_variance=self._accelerometer_extra_variance,
+            gyroscope_extra_variance=self._gyroscope_extra_variance,
+            accelerometer_low_pass=self._accelerometer_low_pass,
+            initialised=self._initialised,
+            last_fix=self._last_fix,
+            last_nis=self._last_nis,
+            counters=dict(self._counters),
+        )
+
+    def restore(self, snapshot: KalmanSnapshot) -> None:
+        """Continue from ``snapshot`` (taken from a filter with the same configuration)."""
+        if not isinstance(snapshot, KalmanSnapshot):
+            raise ValueError(f"restore: expected a KalmanSnapshot, got "
+                             f"{type(snapshot).__name__}")
+        if snapshot.configuration != self._configuration():
+            raise ValueError("restore: the snapshot was taken from a filter with other "
+                             "parameters, imu_to_body, gravity or lever_arm; expected the same")
+        self._kf.x = snapshot.x.copy()
+        self._kf.P = snapshot.P.copy()
+        self._orientation.state = snapshot.orientation.copy()
+        self._R_current = None
+        self._time = snapshot.time
+        self._imu_stamp = snapshot.imu_stamp
+        self._imu_time = snapshot.imu_time
+        self._accelerometer = snapshot.accelerometer
+        self._gyroscope = snapshot.gyroscope
+        self._accelerometer_extra_variance = snapshot.accelerometer_extra_variance
+        self._gyroscope_extra_variance = snapshot.gyroscope_extra_variance
+        self._accelerometer_low_pass = snapshot.accelerometer_low_pass
+        self._initialised = snapshot.initialised
+        self._last_fix = snapshot.last_fix
+        self._last_nis = snapshot.last_nis
+        self._counters = dict(snapshot.counters)
+
+    # ------------------------------------------------------------------ internals
+
+    def _predict_valid(self, stamp: float, f: Vector3, omega: Vector3) -> str:
+        """predict() after validation: finite sample, stamp after the previous sample's."""
+        params = self.params
+        if max(abs(f[0]), abs(f[1]), abs(f[2]), abs(omega[0]), abs(omega[1]),
+               abs(omega[2])) > model.IMPLAUSIBLE_SAMPLE:
+            self._counters["imu_rejected"] += 1
+            return REJECTED
+        f, accelerometer_extra = self._limit(f, params.accelerometer_range,
+                                             "accelerometer_saturated")
+        omega, gyroscope_extra = self._limit(omega, params.gyroscope_range, "gyroscope_saturated")
+        t = stamp - params.imu_latency_s
+        if self._imu_time is not None and t - self._imu_time > params.imu_dropout_s:
+            self._counters["imu_dropouts"] += 1
+        if self._time is not None and t <= self._time and self._imu_time is not None:
+            if t < self._time:
+                self._counters["imu_late"] += 1
+        else:
+            self._advance(t, f, omega)
+        self._accelerometer = f
+        self._gyroscope = omega
+        self._accelerometer_extra_variance = accelerometer_extra
+        self._gyroscope_extra_variance = gyroscope_extra
+        self._imu_stamp = stamp
+        self._imu_time = t
+        self._counters["predictions"] += 1
+        return PREDICTED
+
+    def _limit(self, sample: Vector3, sensor_range: float, counter: str
+               ) -> tuple[Vector3, float]:
+        """A saturated sample (an axis at 99.9 % of the range or beyond) is counted, clipped to
+        the range (what the sensor can report) and given :func:`model.saturation_variance`.
+
+        The variance is held over the interval after the sample only: under the first-order hold
+        the sample's error ramps in over the interval before it and out over the one after,
+        moving the velocity by the same ``dt e`` as one interval of a held error."""
+        if max(abs(sample[0]), abs(sample[1]), abs(sample[2])) < (model.SATURATION_FRACTION
+                                                                   * sensor_range):
+            return sample, 0.0
+        self._counters[counter] += 1
+        return _clipped(sample, sensor_range), model.saturation_variance(sensor_range)
+
+    def _interval_ends(self, t: float, f_end: Vector3 | None, omega_end: Vector3 | None
+                       ) -> tuple[Vector3, Vector3, Vector3, Vector3]:
+        """Specific force and rate at the start (state time) and end (t) of the interval:
+        linear between the held sample and the new one, or the held sample throughout."""
+        assert self._accelerometer is not None and self._gyroscope is not None
+        f0, omega0 = self._accelerometer, self._gyroscope
+        if f_end is None or omega_end is None:
+            return f0, f0, omega0, omega0
+        assert self._time is not None and self._imu_time is not None
+        if self._time > self._imu_time:  # part of the interval was already covered by a hold
+            weight = (self._time - self._imu_time) / (t - self._imu_time)
+            f0 = (f0[0] + weight * (f_end[0] - f0[0]), f0[1] + weight * (f_end[1] - f0[1]),
+                  f0[2] + weight * (f_end[2] - f0[2]))
+            omega0 = (omega0[0] + weight * (omega_end[0] - omega0[0]),
+                      omega0[1] + weight * (omega_end[1] - omega0[1]),
+                      omega0[2] + weight * (omega_end[2] - omega0[2]))
+        return f0, f_end, omega0, omega_end
+
+    def _advance(self, t: float, f_end: Vector3 | None = None,
+                 omega_end: Vector3 | None = None) -> None:
+        """Propagate orientation and state from the state's time to t (s). With ``f_end``,
+        ``omega_end`` (a new sample at t) the signals are linear over the interval; without,
+        the held sample is held."""
+        if self._time is None:
+            self._time = t
+            return
+        dt = t - self._time
+        if dt <= 0.0:
+            return
+        orientation = self._orientation
+        if self._accelerometer is not None and orientation.state.initialised:
+            f0, f1, omega0, omega1 = self._interval_ends(t, f_end, omega_end)
+            R0 = self._R_current if self._R_current is not None else orientation.matrix()
+            angle_variance = orientation.angle_variance
+            orientation.propagate(omega0, omega1, dt, self._gyroscope_extra_variance * dt * dt)
+            R1 = orientation.matrix()
+            self._R_current = R1
+            previous_low_pass = self._accelerometer_low_pass
+            low_pass = self._low_pass(f1, dt)
+            if self._initialised:
+                params = self.params
+                force_squared = 0.5 * (f0[0] * f0[0] + f0[1] * f0[1] + f0[2] * f0[2]
+                                       + f1[0] * f1[0] + f1[1] * f1[1] + f1[2] * f1[2])
+                bias_variance = model.orientation_leak_variance(
+                    force_squared, orientation.angle_variance - angle_variance,
+                    params.tilt_error_inflation)
+                if params.accelerometer_scale_error > 0.0 and previous_low_pass is not None:
+                    bias_variance += model.scale_error_variance(
+                        params.accelerometer_scale_error,
+                        _squared_distance(low_pass, previous_low_pass), dt)
+                acceleration_variance = (self._accelerometer_extra_variance
+                                         + model.interpolation_variance(
+                                             _squared_distance(f0, f1),
+                                             params.accelerometer_noise_density ** 2 / dt))
+                F, B = self._F, self._B
+                model.fill_interval(F, B, R0, R1, dt)
+                model.control_input(f0, f1, self._gravity, out=self._u)
+                Q = model.process_noise(
+                    dt, params.accelerometer_noise_density, params.accelerometer_bias_random_walk,
+                    acceleration_variance=acceleration_variance,
+                    bias_variance=bias_variance, size=self.size, out=self._Q)
+                self._kf.predict(u=self._u, B=B, F=F, Q=Q)
+                self._symmetrise()
+                if self._interval is not None:
+                    self._interval = F @ self._interval
+            if not self._finite():
+                self._reset()
+        self._time = t
+
+    def _update_valid(self, t: float, z: NDArray[np.float64] | None,
+                      q_global_body: NDArray[np.float64] | None) -> UpdateOutcome:
+        self._advance(t)
+        self._prior = None
+        if z is None:
+            self._counters["occluded"] += 1
+            return UpdateOutcome(t, OCCLUDED, math.nan)
+        q_global_imu: Quaternion | None = None
+        if q_global_body is not None:
+            q_global_imu = normalise(quaternion_product(
+                (float(q_global_body[0]), float(q_global_body[1]), float(q_global_body[2]),
+                 float(q_global_body[3])), self._q_body_imu))
+        if not self._orientation.state.initialised:
+            if q_global_imu is None:
+                self._counters["no_orientation"] += 1
+                self._counters["occluded"] += 1
+                return UpdateOutcome(t, OCCLUDED, math.nan)
+            self._orientation.initialise(q_global_imu)
+            self._R_current = None
+        H, offset = self._output_map(q_global_imu if q_global_imu is not None
+                                     else self._orientation.state.quaternion)
+        if not self._initialised:  # the orientation was initialised from this frame above
+            self._initialise(t, z, H, offset)
+            return UpdateOutcome(t, INITIALISED, math.nan)
+
+        P = self._kf.P
+        y = z - offset - H @ self._kf.x
+        S = H @ P @ H.T + self._kf.R
+        nis = model.normalised_innovation_squared(y, S)
+        self._last_nis = nis
+        since = t - self._last_fix if self._last_fix is not None else math.inf
+        kind = ACCEPTED
+        if since >= self.params.reacquire_after_s:
+            kind = REACQUIRED
+            if nis > self._gate:
+                position_variance, velocity_variance = model.reacquisition_inflation(y, since)
+                P = P.copy()
+                P[model.POSITION, model.POSITION] += position_variance * np.eye(3)
+                P[model.VELOCITY, model.VELOCITY] += velocity_variance * np.eye(3)
+                self._kf.P = P
+        elif nis > self._gate and float(y @ y) > self.params.gate_min_innovation ** 2:
+            self._counters["gated"] += 1
+            return UpdateOutcome(t, GATED, nis)
+        if self._interval is not None:
+            self._prior = (np.array(self._kf.x, dtype=float), np.array(self._kf.P, dtype=float))
+        self._kf.update(z - offset, H=H)
+        self._symmetrise()
+        if q_global_imu is not None:
+            self._orientation.correct(q_global_imu)
+            self._R_current = None
+        self._mark_fix(t)
+        if kind == REACQUIRED:
+            self._counters["reacquired"] += 1
+        return UpdateOutcome(t, kind, nis)
+
+    def _finite(self) -> bool:
+        """False when a propagation overflowed (an interval of 1e200 s, say)."""
+        state = self._orientation.state
+        return bool(math.isfinite(sum(state.covariance) + sum(state.quaternion))
+                    and np.isfinite(self._kf.x).all() and np.isfinite(self._kf.P).all())
+
+    def _reset(self) -> None:
+        """Forget position and orientation: the state is unknown (``lost``) until a fix with an
+        orientation initialises it again. Counted as ``resets``."""
+        self._initialised = False
+        self._orientation.state = OrientationState()
+        self._R_current = None
+        self._kf.x = np.zeros(self.size)
+        self._kf.P = np.eye(self.size)
+        self._last_fix = None
+        self._counters["resets"] += 1
+
+    def _mark_fix(self, t: float) -> None:
+        self._last_fix = t
+        self._counters["updates"] += 1
+
+    def _initialise(self, t: float, z: NDArray[np.float64], H: NDArray[np.float64],
+                    offset: NDArray[np.float64]) -> None:
+        params = self.params
+        R_global_body = -H[:, model.LEVER] if self.estimates_lever_arm else None
+        self._kf.x = model.initial_state(z - offset, self.size)
+        self._kf.P = model.initial_covariance(
+            params.mocap_position_noise, params.initial_velocity_std, params.initial_bias_std,
+            params.lever_arm_std, self.size, R_global_body)
+        self._initialised = True
+        self._mark_fix(t)
+        self._counters["initialised"] += 1
+
+    def _low_pass(self, f: Vector3, dt: float) -> Vector3:
+        """Advance the low-passed specific force (scale-error term) by dt with the value f."""
+        previous = self._accelerometer_low_pass
+        if previous is None:
+            self._accelerometer_low_pass = f
+            return f
+        weight = model.low_pass_weight(dt)
+        low_pass = (previous[0] + weight * (f[0] - previous[0]),
+                    previous[1] + weight * (f[1] - previous[1]),
+                    previous[2] + weight * (f[2] - previous[2]))
+        self._accelerometer_low_pass = low_pass
+        return low_pass
+
+    def _symmetrise(self) -> None:
+        P = self._kf.P
+        self._kf.P = 0.5 * (P + P.T)
+
+    def _output_map(self, q_global_imu: Quaternion
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(H, c) with rigid-body point ``= H x + c`` at orientation ``q_global_imu``:
+        c = ``-R_global_body lever`` for a given lever arm, else 0."""
+        if self._lever_arm is None and not self.estimates_lever_arm:
+            return self._H, np.zeros(3)
+        R_global_body = matrix_from_quaternion(q_global_imu) @ self._R_imu_body
+        if self.estimates_lever_arm:
+            return model.measurement_matrix(self.size, R_global_body), np.zeros(3)
+        assert self._lever_arm is not None
+        return self._H, -(R_global_body @ self._lever_arm)
+
+    def _lever_in_use(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        if self.estimates_lever_arm:
+            return np.array(x[model.LEVER], dtype=float)
+        if self._lever_arm is not None:
+            return self._lever_arm.copy()
+        return np.zeros(3)
+
+    def _extrapolate(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                              Quaternion]:
+        """State, covariance and orientation at t >= the state's time, without changing them."""
+        assert self._time is not None
+        dt = t - self._time
+        orientation = self._orientation
+        if (dt <= 0.0 or self._accelerometer is None or self._gyroscope is None
+                or not orientation.state.initialised or not self._initialised):
+            return (np.array(self._kf.x, dtype=float), np.array(self._kf.P, dtype=float),
+                    orientation.state.quaternion)
+        saved = orientation.state.copy()
+        f, omega = self._accelerometer, self._gyroscope
+        R0 = orientation.matrix()
+        angle_variance = orientation.angle_variance
+        orientation.propagate(omega, omega, dt, self._gyroscope_extra_variance * dt * dt)
+        quaternion = orientation.state.quaternion
+        R1 = orientation.matrix()
+        bias_variance = model.orientation_leak_variance(
+            f[0] * f[0] + f[1] * f[1] + f[2] * f[2], orientation.angle_variance - angle_variance,
+            self.params.tilt_error_inflation)
+        orientation.state = saved
+        u = model.control_input(f, f, self._gravity)
+        Q = model.process_noise(dt, self.params.accelerometer_noise_density,
+                                self.params.accelerometer_bias_random_walk,
+                                acceleration_variance=self._accelerometer_extra_variance,
+                                bias_variance=bias_variance, size=self.size)
+        x, P = self._kf.get_prediction(u=u, B=model.control_matrix(R0, R1, dt, self.size),
+                                       F=model.transition_matrix(R0, R1, dt, self.size), Q=Q)
+        return np.asarray(x, dtype=float), 0.5 * (P + P.T), quaternion

@@ -1,0 +1,280 @@
+"""Orientation for the position filter: mocap while visible, gyroscope integration through gaps.
+
+Choice (issue 4, section 2): gyroscope integration from the last seen orientation, with a
+gyroscope bias learned while the mocap is visible. The position filter is linear only if the
+rotation ``R_global_imu`` entering its transition is known, so orientation is kept outside it, in
+a small filter of its own:
+
+* the orientation ``q_global_imu`` is integrated from the gyroscope, minus the learned bias, at
+  every IMU step (``q <- q ⊗ Exp((omega_mean - b_g) dt)``, omega_mean the mean of the rates at the
+  two ends of the step: the first-order hold of :mod:`kfusion.kalman.model`);
+* every accepted mocap fix corrects it towards ``q_global_body ⊗ q_body_imu`` and updates the
+  bias with the gains of a two-state Kalman filter per axis, state ``[dtheta, db_g]`` (angle error
+  and bias error, IMU frame). So while visible the orientation is the mocap's, smoothed by the
+  gyroscope over a few frames (the mocap's own orientation noise is 0.2 deg);
+* through a gap nothing corrects it: the orientation is the gyroscope integrated from the last
+  fix with the bias learned while visible, and its variance grows as the model says (gyroscope
+  noise, bias uncertainty, and a scale-error term growing with the rotation since the fix).
+
+Why not an orientation error state inside the position filter (a 15-state error-state filter)?
+It would let position fixes correct tilt, but it makes the model nonlinear (the transition
+depends on the state), breaks the linear form that filterpy and the RTS smoother use as they are,
+and costs a 15x15 covariance product per IMU sample. Mocap orientation is far better than what
+position fixes could add, so the gain is small while visible; in a gap neither variant has a fix.
+What the decoupled design loses is the *covariance* link between tilt error and position; it is
+put back as process noise by :func:`kfusion.kalman.model.orientation_leak_variance`, using the
+angle variance computed here. (Measured on the BROAD trials: replacing the gyroscope orientation
+in 0.1-0.3 s gaps by the hidden mocap orientation changed the gap RMS by at most 0.2 mm on the
+four fast trials, so, with this design, orientation is not where the error is.)
+
+The two-state filter shares its variances between the three axes (isotropic noise, and the
+small-angle error dynamics ``dtheta' = dtheta - dt db_g`` are the same on each axis), so its
+covariance is three scalars. The rotation of the error frame by ``omega dt`` is neglected: it
+leaves an isotropic covariance unchanged.
+
+The maths is written on Python floats: at IMU rate a 4-element numpy operation costs more in call
+overhead than the arithmetic. :func:`quaternion_step` and :func:`matrix_from_quaternion` follow
+:mod:`kfusion.conventions` exactly (``[w, x, y, z]``, Hamilton product) and are tested against it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+Quaternion = tuple[float, float, float, float]
+"""Unit quaternion ``(w, x, y, z)`` as Python floats."""
+Vector = tuple[float, float, float]
+
+
+def quaternion_product(a: Quaternion, b: Quaternion) -> Quaternion:
+    """Hamilton product ``a ⊗ b`` (same as :func:`kfusion.conventions.quaternion_multiply`)."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return (
+        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+    )
+
+
+def quaternion_exp(rotation_vector: Vector) -> Quaternion:
+    """``Exp(theta) = [cos(|theta|/2), sin(|theta|/2) theta/|theta|]``, theta in rad."""
+    x, y, z = rotation_vector
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < 1e-12:
+        return (1.0, 0.5 * x, 0.5 * y, 0.5 * z)
+    if not math.isfinite(angle):  # an overflowed step: no rotation can be given
+        return (math.nan, math.nan, math.nan, math.nan)
+    scale = math.sin(0.5 * angle) / angle
+    return (math.cos(0.5 * angle), scale * x, scale * y, scale * z)
+
+
+def quaternion_log(quaternion: Quaternion) -> Vector:
+    """Rotation vector ``theta`` (rad, |theta| <= pi) with ``Exp(theta) = ±quaternion``."""
+    w, x, y, z = quaternion
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    norm = math.sqrt(x * x + y * y + z * z)
+    if norm < 1e-12:
+        return (2.0 * x, 2.0 * y, 2.0 * z)
+    scale = 2.0 * math.atan2(norm, w) / norm
+    return (scale * x, scale * y, scale * z)
+
+
+def normalise(quaternion: Quaternion) -> Quaternion:
+    """``q / |q|``."""
+    w, x, y, z = quaternion
+    inverse = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+    return (w * inverse, x * inverse, y * inverse, z * inverse)
+
+
+def conjugate(quaternion: Quaternion) -> Quaternion:
+    """``q* = [w, -x, -y, -z]`` (the inverse of a unit quaternion)."""
+    w, x, y, z = quaternion
+    return (w, -x, -y, -z)
+
+
+def quaternion_step(quaternion: Quaternion, angular_rate: Vector, dt: float) -> Quaternion:
+    """One gyroscope step at constant body rate: ``q ⊗ Exp(omega dt)``, normalised.
+
+    Same as :func:`kfusion.conventions.integrate_gyroscope`; ``angular_rate`` in rad/s (IMU frame),
+    ``dt`` in s.
+    """
+    wx, wy, wz = angular_rate
+    return normalise(quaternion_product(quaternion, quaternion_exp((wx * dt, wy * dt, wz * dt))))
+
+
+def matrix_from_quaternion(quaternion: Quaternion) -> NDArray[np.float64]:
+    """Rotation matrix (3, 3) of a unit quaternion (same as
+    :func:`kfusion.conventions.matrix_from_wxyz`)."""
+    w, x, y, z = quaternion
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def propagate_orientation_covariance(
+    covariance: tuple[float, float, float],
+    dt: float,
+    gyroscope_noise_density: float,
+    gyroscope_bias_random_walk: float,
+    extra_angle_variance: float = 0.0,
+) -> tuple[float, float, float]:
+    """Per-axis covariance ``(P_tt, P_tb, P_bb)`` of ``[dtheta, db_g]`` over dt.
+
+    Continuous model ``dtheta' = -db_g + w_g``, ``db_g' = w_b`` (white noise densities sigma_g in
+    rad/s/sqrt(Hz) and sigma_bg in rad/s^2/sqrt(Hz)); exact discretisation with
+    ``F = [[1, -dt], [0, 1]]``::
+
+        Q = [[sigma_g^2 dt + sigma_bg^2 dt^3/3, -sigma_bg^2 dt^2/2],
+             [-sigma_bg^2 dt^2/2,               sigma_bg^2 dt     ]]
+        P' = F P F^T + Q   (+ extra_angle_variance on P_tt, e.g. a saturated gyroscope)
+    """
+    angle, cross, bias = covariance
+    g2 = gyroscope_noise_density * gyroscope_noise_density
+    b2 = gyroscope_bias_random_walk * gyroscope_bias_random_walk
+    angle_new = (angle - 2.0 * dt * cross + dt * dt * bias + g2 * dt + b2 * dt * dt * dt / 3.0
+                 + extra_angle_variance)
+    cross_new = cross - dt * bias - 0.5 * b2 * dt * dt
+    bias_new = bias + b2 * dt
+    return angle_new, cross_new, bias_new
+
+
+@dataclass
+class OrientationState:
+    """Mutable state of :class:`OrientationTracker` (plain floats, so copies are cheap and exact).
+
+    Attributes:
+        quaternion: ``q_global_imu`` (w, x, y, z).
+        gyroscope_bias: (3,) rad/s, IMU frame, subtracted from the gyroscope.
+        covariance: per-axis ``(P_tt rad^2, P_tb rad^2/s, P_bb rad^2/s^2)``.
+        rotation_since_fix: (3,) rad, IMU frame: the integrated rate since the last correction.
+        scale_variance_peak: rad^2, the scale-error angle variance reached since then.
+        initialised: False until the first mocap orientation.
+    """
+
+    quaternion: Quaternion = (1.0, 0.0, 0.0, 0.0)
+    gyroscope_bias: Vector = (0.0, 0.0, 0.0)
+    covariance: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rotation_since_fix: Vector = (0.0, 0.0, 0.0)
+    scale_variance_peak: float = 0.0
+    initialised: bool = False
+
+    def copy(self) -> OrientationState:
+        """An independent copy (every field is immutable, so a shallow copy is exact)."""
+        return dataclasses.replace(self)
+
+
+class OrientationTracker:
+    """Gyroscope integration with a bias learned from mocap orientations (see module docstring).
+
+    Args:
+        gyroscope_noise_density: rad/s/sqrt(Hz).
+        gyroscope_bias_random_walk: rad/s^2/sqrt(Hz).
+        mocap_orientation_noise: 1-sigma per axis of a mocap orientation, rad.
+        initial_gyroscope_bias_std: 1-sigma of the gyroscope bias before the first fix, rad/s.
+        gyroscope_scale_error: 1-sigma scale and cross-axis error (fraction); the angle variance
+            grows by ``scale_error^2 |rotation since the last fix|^2`` (peak-held, see
+            :func:`kfusion.kalman.model.scale_error_variance`).
+    """
+
+    def __init__(self, gyroscope_noise_density: float, gyroscope_bias_random_walk: float,
+                 mocap_orientation_noise: float, initial_gyroscope_bias_std: float,
+                 gyroscope_scale_error: float = 0.0) -> None:
+        self.gyroscope_noise_density = gyroscope_noise_density
+        self.gyroscope_bias_random_walk = gyroscope_bias_random_walk
+        self.measurement_variance = mocap_orientation_noise ** 2
+        self.initial_bias_variance = initial_gyroscope_bias_std ** 2
+        self.scale_variance = gyroscope_scale_error ** 2
+        self.state = OrientationState()
+
+    @property
+    def angle_variance(self) -> float:
+        """Per-axis variance of the orientation error, rad^2."""
+        return self.state.covariance[0]
+
+    def matrix(self) -> NDArray[np.float64]:
+        """``R_global_imu`` (3, 3) of the current estimate."""
+        return matrix_from_quaternion(self.state.quaternion)
+
+    def initialise(self, q_global_imu: Quaternion) -> None:
+        """Start from a mocap orientation: angle variance sigma_m^2, bias 0 with its turn-on
+        variance."""
+        self.state = OrientationState(
+            quaternion=normalise(q_global_imu),
+            covariance=(self.measurement_variance, 0.0, self.initial_bias_variance),
+            initialised=True)
+
+    def propagate(self, gyroscope_start: Vector, gyroscope_end: Vector, dt: float,
+                  extra_angle_variance: float = 0.0) -> None:
+        """Integrate over dt (s) the gyroscope (rad/s, IMU frame) taken as linear between its
+        values at the start and end of the interval, i.e. at their mean rate:
+        ``q <- q ⊗ Exp(((omega0 + omega1)/2 - b_g) dt)``; grow the covariance
+        (:func:`propagate_orientation_covariance`, plus the scale-error term and
+        ``extra_angle_variance``)."""
+        state = self.state
+        if not state.initialised or dt <= 0:
+            return
+        bx, by, bz = state.gyroscope_bias
+        rate = (0.5 * (gyroscope_start[0] + gyroscope_end[0]) - bx,
+                0.5 * (gyroscope_start[1] + gyroscope_end[1]) - by,
+                0.5 * (gyroscope_start[2] + gyroscope_end[2]) - bz)
+        state.quaternion = quaternion_step(state.quaternion, rate, dt)
+        if self.scale_variance > 0.0:
+            rx, ry, rz = state.rotation_since_fix
+            rx, ry, rz = rx + rate[0] * dt, ry + rate[1] * dt, rz + rate[2] * dt
+            state.rotation_since_fix = (rx, ry, rz)
+            peak = max(state.scale_variance_peak, self.scale_variance * (rx * rx + ry * ry
+                                                                         + rz * rz))
+            extra_angle_variance += peak - state.scale_variance_peak
+            state.scale_variance_peak = peak
+        state.covariance = propagate_orientation_covariance(
+            state.covariance, dt, self.gyroscope_noise_density, self.gyroscope_bias_random_walk,
+            extra_angle_variance)
+
+    def correct(self, q_global_imu: Quaternion) -> Vector:
+        """Fuse a mocap orientation; returns the innovation ``Log(q_est^-1 ⊗ q_mocap)``, rad.
+
+        Per axis, with ``H = [1, 0]``::
+
+            S = P_tt + sigma_m^2,  K = [P_tt, P_tb] / S
+            dtheta = K_t z,  db_g = K_b z        (z: the innovation on that axis)
+            q <- q ⊗ Exp(dtheta),  b_g <- b_g + db_g
+            P <- (I - K H) P
+
+        Signs: ``q_true = q_est ⊗ Exp(dtheta)`` and ``db_g = b_g,true - b_g,est``; the estimate
+        turns at ``omega + db_g``, so ``dtheta' = -db_g`` and ``P_tb`` becomes negative, which
+        makes a lagging truth (negative innovation) raise the bias estimate. The scale-error
+        record restarts from this fix.
+        """
+        state = self.state
+        innovation = quaternion_log(quaternion_product(conjugate(state.quaternion),
+                                                       q_global_imu))
+        state.rotation_since_fix = (0.0, 0.0, 0.0)
+        state.scale_variance_peak = 0.0
+        angle, cross, bias = state.covariance
+        S = angle + self.measurement_variance
+        if S <= 0.0:
+            # exact orientation and exact prediction: take the measurement as it is
+            state.quaternion = normalise(q_global_imu)
+            return innovation
+        gain_angle = angle / S
+        gain_bias = cross / S
+        correction = (gain_angle * innovation[0], gain_angle * innovation[1],
+                      gain_angle * innovation[2])
+        state.quaternion = normalise(quaternion_product(state.quaternion,
+                                                        quaternion_exp(correction)))
+        bx, by, bz = state.gyroscope_bias
+        state.gyroscope_bias = (bx + gain_bias * innovation[0], by + gain_bias * innovation[1],
+                                bz + gain_bias * innovation[2])
+        state.covariance = ((1.0 - gain_angle) * angle, (1.0 - gain_angle) * cross,
+                            bias - gain_bias * cross)
+        return innovation

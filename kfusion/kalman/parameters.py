@@ -1,0 +1,214 @@
+"""Tunable parameters of the Kalman tracker: one frozen, validated object built from profiles.
+
+Every noise figure comes from :mod:`kfusion.profiles` (the same numbers the simulator draws its
+errors from), so nothing needs tuning for a profiled sensor. Units are SI throughout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Final
+
+from kfusion.profiles import (
+    OPTITRACK,
+    ImuProfile,
+    MocapProfile,
+    imu_profile,
+    mocap_profile,
+)
+
+DEFAULT_IMU_PROFILE: Final = "mpu9255"
+"""IMU profile used when neither the caller nor ``recording.yaml`` names one (the paper's IMU)."""
+DEFAULT_MOCAP_PROFILE: Final = OPTITRACK.name
+"""Mocap profile used when the caller names none."""
+
+IMU_LATENCY_S: Final[dict[str, float]] = {"broad": 0.003}
+"""Measured IMU latency against the mocap clock, s, by IMU profile name (0 when absent; the
+simulator's sensors have none).
+
+BROAD: the mean NIS of every mocap fix (no artificial gaps, mocap every 3rd sample, gating off),
+geometric mean over the seven trials, was 0.372 / 0.252 / 0.221 / 0.221 / 0.231 / 0.295 at a
+latency of 0 / 1.5 / 2.5 / 3.0 / 3.5 / 4.5 ms; five trials have their minimum at 2.5-3.0 ms.
+That is about one sample at 285.7 Hz (the README: the clocks agree within one sample). It is a
+property of the sensor set-up, like its noise, and belongs in :class:`kfusion.profiles.
+ImuProfile`; it lives here until the profile has a field for it."""
+
+
+@dataclass(frozen=True)
+class KalmanParameters:
+    """Noise model and behaviour of :class:`kfusion.kalman.KalmanFusion`.
+
+    Attributes (SI units):
+        accelerometer_noise_density: white-noise density sigma_a, m/s^2/sqrt(Hz), >= 0.
+        accelerometer_bias_random_walk: bias random-walk density sigma_b, m/s^3/sqrt(Hz), >= 0.
+        gyroscope_noise_density: white-noise density, rad/s/sqrt(Hz), >= 0.
+        gyroscope_bias_random_walk: bias random-walk density, rad/s^2/sqrt(Hz), >= 0.
+        mocap_position_noise: 1-sigma per axis of a mocap position, m, > 0.
+        mocap_orientation_noise: 1-sigma per axis of a mocap orientation, rad, >= 0.
+        initial_bias_std: 1-sigma of the accelerometer bias before any fix, m/s^2, >= 0
+            (the profile's turn-on bias).
+        initial_gyroscope_bias_std: 1-sigma of the gyroscope bias before any fix, rad/s, >= 0
+            (the profile's turn-on bias).
+        initial_velocity_std: 1-sigma of the velocity at the first fix, m/s, > 0.
+        accelerometer_scale_error: 1-sigma of the accelerometer's scale and cross-axis error,
+            combined per entry as ``sqrt(scale^2 + cross_axis^2)`` (fraction), >= 0. The error
+            ``S f`` it causes is carried by the bias state as a random walk driven by the
+            change of f (:func:`kfusion.kalman.model.scale_error_variance`).
+        gyroscope_scale_error: the same for the gyroscope; it adds orientation error of
+            variance up to ``scale_error^2 |rotation since the fix|^2``.
+        lever_arm_std: 1-sigma per axis, m, >= 0, of the lever arm when the recording does not
+            give one: the filter then estimates it (12 states). 0 ignores an unknown lever arm
+            (9 states, the IMU point taken as the rigid-body point).
+        imu_latency_s: how late the IMU timestamps are against the mocap clock, s (a sample
+            stamped t describes the motion at ``t - imu_latency_s``). Finite.
+        accelerometer_range: full scale, m/s^2, > 0 (``math.inf``: never saturates). A sample
+            with an axis at 99.9 % of it or beyond is flagged as saturated and its noise inflated.
+        gyroscope_range: full scale, rad/s, > 0, used the same way for the orientation.
+        gate_probability: probability mass of the chi-square (3 dof) gate on the mocap position
+            innovation, in (0, 1]; ``None`` or 1.0 disables gating. 0.9999 rejects a consistent
+            fix once in 10 000 frames.
+        gate_min_innovation: a fix whose innovation (distance between the fix and the
+            prediction) is at most this (m, >= 0) is never gated. A marker swap or a jump moves
+            the rigid body by centimetres; the floor keeps a filter that is briefly
+            over-confident (an impact the IMU could not sample) from rejecting good fixes and
+            drifting away from them.
+        reacquire_after_s: a fix arriving this long (s) or longer after the last accepted fix is
+            accepted without gating (re-acquisition); if its innovation would have failed the
+            gate, the position covariance is first inflated so that the fix re-initialises it.
+            >= 0.
+        max_bridge_s: longest time (s) after the last accepted fix for which the output is
+            ``bridged``; later it is ``lost``. > 0.
+        imu_dropout_s: an interval between IMU samples longer than this (s) is counted as a
+            dropout (the prediction still runs over the real interval). > 0.
+        tilt_error_inflation: scale (>= 0) of the process noise that accounts for the
+            orientation error growing through a gap (see :func:`kfusion.kalman.model.
+            orientation_leak_variance`); 0 switches it off, 1 is the derived value.
+    """
+
+    accelerometer_noise_density: float
+    accelerometer_bias_random_walk: float
+    gyroscope_noise_density: float
+    gyroscope_bias_random_walk: float
+    mocap_position_noise: float
+    mocap_orientation_noise: float
+    initial_bias_std: float
+    initial_gyroscope_bias_std: float
+    initial_velocity_std: float = 1.0
+    accelerometer_scale_error: float = 0.0
+    gyroscope_scale_error: float = 0.0
+    lever_arm_std: float = 0.02
+    imu_latency_s: float = 0.0
+    accelerometer_range: float = math.inf
+    gyroscope_range: float = math.inf
+    gate_probability: float | None = 0.9999
+    gate_min_innovation: float = 0.01
+    reacquire_after_s: float = 0.5
+    max_bridge_s: float = 1.0
+    imu_dropout_s: float = 0.1
+    tilt_error_inflation: float = 1.0
+
+    def __post_init__(self) -> None:
+        non_negative = (
+            "accelerometer_noise_density", "accelerometer_bias_random_walk",
+            "gyroscope_noise_density", "gyroscope_bias_random_walk", "mocap_orientation_noise",
+            "initial_bias_std", "initial_gyroscope_bias_std", "reacquire_after_s",
+            "tilt_error_inflation", "accelerometer_scale_error", "gyroscope_scale_error",
+            "lever_arm_std", "gate_min_innovation",
+        )
+        positive = ("mocap_position_noise", "initial_velocity_std", "accelerometer_range",
+                    "gyroscope_range", "max_bridge_s", "imu_dropout_s")
+        for name in non_negative + positive + ("imu_latency_s",):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"KalmanParameters.{name}: expected a number, got {value!r}")
+            infinite_allowed = name.endswith("_range")
+            if math.isnan(value) or (math.isinf(value) and not infinite_allowed):
+                raise ValueError(f"KalmanParameters.{name}: expected a finite number, "
+                                 f"got {value!r}")
+            if name in positive and not value > 0:
+                raise ValueError(f"KalmanParameters.{name}: expected a number > 0, got {value!r}")
+            if name in non_negative and not value >= 0:
+                raise ValueError(f"KalmanParameters.{name}: expected a number >= 0, "
+                                 f"got {value!r}")
+            object.__setattr__(self, name, float(value))
+        gate = self.gate_probability
+        if gate is not None:
+            if isinstance(gate, bool) or not isinstance(gate, (int, float)) or not 0 < gate <= 1:
+                raise ValueError("KalmanParameters.gate_probability: expected None or a "
+                                 f"probability in (0, 1], got {gate!r}")
+            object.__setattr__(self, "gate_probability", float(gate))
+
+    @property
+    def gating(self) -> bool:
+        """True when mocap fixes are gated (``gate_probability`` set and below 1)."""
+        return self.gate_probability is not None and self.gate_probability < 1.0
+
+    @classmethod
+    def from_profiles(
+        cls,
+        imu: ImuProfile | str | None = None,
+        mocap: MocapProfile | str | None = None,
+        **overrides: Any,
+    ) -> KalmanParameters:
+        """Parameters from an IMU and a mocap profile (objects or names), then ``overrides``.
+
+        ``imu`` None means :data:`DEFAULT_IMU_PROFILE`, ``mocap`` None
+        :data:`DEFAULT_MOCAP_PROFILE`. ``overrides`` are field names; an unknown one is a
+        ValueError listing the fields.
+        """
+        imu_object = imu_profile(imu or DEFAULT_IMU_PROFILE) if not isinstance(
+            imu, ImuProfile) else imu
+        mocap_object = mocap_profile(mocap or DEFAULT_MOCAP_PROFILE) if not isinstance(
+            mocap, MocapProfile) else mocap
+        _check_keys(overrides, "override")
+        values: dict[str, Any] = {
+            "accelerometer_noise_density": imu_object.accelerometer_noise_density,
+            "accelerometer_bias_random_walk": imu_object.accelerometer_bias_random_walk,
+            "gyroscope_noise_density": imu_object.gyroscope_noise_density,
+            "gyroscope_bias_random_walk": imu_object.gyroscope_bias_random_walk,
+            "mocap_position_noise": mocap_object.position_noise,
+            "mocap_orientation_noise": mocap_object.orientation_noise,
+            "initial_bias_std": imu_object.accelerometer_turn_on_bias,
+            "initial_gyroscope_bias_std": imu_object.gyroscope_turn_on_bias,
+            "accelerometer_range": imu_object.accelerometer_range,
+            "gyroscope_range": imu_object.gyroscope_range,
+            "accelerometer_scale_error": math.hypot(imu_object.accelerometer_scale_error,
+                                                    imu_object.accelerometer_cross_axis),
+            "gyroscope_scale_error": math.hypot(imu_object.gyroscope_scale_error,
+                                                imu_object.gyroscope_cross_axis),
+            "imu_latency_s": IMU_LATENCY_S.get(imu_object.name, 0.0),
+        }
+        values.update(overrides)
+        return cls(**values)
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any]) -> KalmanParameters:
+        """Parameters from a plain mapping (e.g. loaded from YAML).
+
+        Optional keys ``imu`` and ``mocap`` name the base profiles; every other key must be a
+        field name and overrides the profile value. Unknown keys are a ValueError.
+        """
+        if not isinstance(mapping, Mapping):
+            raise ValueError(f"KalmanParameters: expected a mapping, got {type(mapping).__name__}")
+        values = dict(mapping)
+        imu = values.pop("imu", None)
+        mocap = values.pop("mocap", None)
+        _check_keys(values, "key")
+        return cls.from_profiles(imu, mocap, **values)
+
+    def to_mapping(self) -> dict[str, Any]:
+        """Plain mapping of every field (round-trips through :meth:`from_mapping`)."""
+        return dataclasses.asdict(self)
+
+
+FIELD_NAMES: Final = tuple(f.name for f in dataclasses.fields(KalmanParameters))
+
+
+def _check_keys(values: Mapping[str, Any], what: str) -> None:
+    unknown = sorted(set(values) - set(FIELD_NAMES))
+    if unknown:
+        raise ValueError(f"KalmanParameters: unknown {what} {unknown[0]!r}; expected one of "
+                         f"{list(FIELD_NAMES)}")

@@ -1,0 +1,203 @@
+"""Offline fixed-interval Rauch-Tung-Striebel smoother over the filter's model, with B u included.
+
+filterpy's ``rts_smoother`` recomputes the prediction as ``F x`` and so drops the control input
+``B u`` (filterpy issue #164): with the IMU as control input that is wrong at every step. Here the
+backward pass runs over the *stored* predicted and filtered states of the forward filter, in which
+``B u`` is already contained, so the control input needs no special treatment.
+
+The forward pass is :class:`kfusion.kalman.KalmanFusion` itself. Between two mocap rows k and k+1
+it runs many IMU predictions; the smoother only needs the rows, so it keeps per row:
+
+* ``x_k, P_k``: filtered state after row k;
+* ``x_{k+1|k}, P_{k+1|k}``: predicted state at row k+1 before its update (equal to the filtered
+  one when the row is occluded or gated; including any re-acquisition inflation);
+* ``Phi_{k+1}``: the product of the transition matrices F of the IMU steps between them.
+
+Since the steps in between are linear, ``cov(x_k, x_{k+1|k}) = P_k Phi_{k+1}^T`` exactly, and the
+RTS recursion over rows is::
+
+    C_k   = P_k Phi_{k+1}^T P_{k+1|k}^-1
+    x_k^s = x_k + C_k (x_{k+1}^s - x_{k+1|k})
+    P_k^s = P_k + C_k (P_{k+1}^s - P_{k+1|k}) C_k^T
+
+starting from the last filtered row (``x^s = x``). Orientation is the forward filter's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kfusion.conventions import BRIDGED, LOST, TRACKED
+from kfusion.kalman.batch import (
+    _RowRecorder,
+    make_fusion,
+    point_estimates,
+    process_recording,
+    resolve_parameters,
+    status_from_fixes,
+)
+from kfusion.kalman.filter import INITIALISED, UpdateOutcome
+from kfusion.kalman.parameters import KalmanParameters
+from kfusion.recording import Recording
+from kfusion.track import TrackResult
+
+
+def rts_step(x_filtered: NDArray[np.float64], P_filtered: NDArray[np.float64],
+             x_predicted: NDArray[np.float64], P_predicted: NDArray[np.float64],
+             transition: NDArray[np.float64], x_smoothed_next: NDArray[np.float64],
+             P_smoothed_next: NDArray[np.float64]
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """One backward RTS step (equations in the module docstring); shapes (9,) and (9, 9).
+
+    ``x_predicted, P_predicted`` are the next row's prediction (with ``B u`` included) and
+    ``transition`` the product of F from this row to the next.
+    """
+    # C = P_k Phi^T P_pred^-1  <=>  C^T = P_pred^-1 Phi P_k  (both covariances symmetric)
+    C = np.linalg.solve(P_predicted, transition @ P_filtered).T
+    x = x_filtered + C @ (x_smoothed_next - x_predicted)
+    P = P_filtered + C @ (P_smoothed_next - P_predicted) @ C.T
+    return x, 0.5 * (P + P.T)
+
+
+def rts_backward(x_filtered: NDArray[np.float64], P_filtered: NDArray[np.float64],
+                 x_predicted: NDArray[np.float64], P_predicted: NDArray[np.float64],
+                 transitions: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Backward pass over rows 0..n-1: (n, 9), (n, 9, 9) arrays where row k+1 holds the
+    prediction from row k and ``transitions[k+1]`` the product of F from row k to k+1 (row 0's
+    prediction and transition are unused). Returns the smoothed states and covariances."""
+    x_smoothed = np.array(x_filtered, dtype=float, copy=True)
+    P_smoothed = np.array(P_filtered, dtype=float, copy=True)
+    for k in range(len(x_filtered) - 2, -1, -1):
+        x_smoothed[k], P_smoothed[k] = rts_step(
+            x_filtered[k], P_filtered[k], x_predicted[k + 1], P_predicted[k + 1],
+            transitions[k + 1], x_smoothed[k + 1], P_smoothed[k + 1])
+    return x_smoothed, P_smoothed
+
+
+@dataclass(frozen=True)
+class SmootherRun:
+    """Smoother output with the forward filter's, one row per mocap row.
+
+    Attributes:
+        result: smoothed TrackResult (method ``smoother``).
+        filtered: the forward filter's TrackResult (method ``kalman``) from the same pass.
+        x: (m, n) smoothed state (n = 9 or 12; NaN before the first fix).
+        P: (m, n, n) smoothed covariance.
+        x_filtered: (m, n) forward filtered states.
+        P_filtered: (m, n, n) their covariance.
+        outcome: (m,) update outcomes of the forward pass.
+        nis: (m,) NIS of each row's fix in the forward pass (NaN where none was compared).
+        params: the parameters used.
+    """
+
+    result: TrackResult
+    filtered: TrackResult
+    x: NDArray[np.float64]
+    P: NDArray[np.float64]
+    x_filtered: NDArray[np.float64]
+    P_filtered: NDArray[np.float64]
+    outcome: NDArray[np.str_]
+    nis: NDArray[np.float64]
+    params: KalmanParameters
+
+
+def initialised_segments(outcome: NDArray[np.str_], initialised: NDArray[np.bool_]
+                         ) -> list[tuple[int, int]]:
+    """Row ranges ``[first, stop)`` over which the filter ran without a re-initialisation: each
+    starts at an ``initialised`` fix and stops before the next one or where the state was
+    forgotten (an overflow reset). The backward pass runs over each separately."""
+    segments = []
+    starts = np.flatnonzero(outcome == INITIALISED)
+    for index, first in enumerate(starts):
+        limit = int(starts[index + 1]) if index + 1 < len(starts) else len(outcome)
+        lost = np.flatnonzero(~initialised[first:limit])
+        stop = int(first + lost[0]) if len(lost) else limit
+        segments.append((int(first), stop))
+    return segments
+
+
+def smoother_status(t: NDArray[np.float64], fixed: NDArray[np.bool_], max_bridge_s: float
+                    ) -> NDArray[np.str_]:
+    """Smoother status per row: ``tracked`` at used fixes; ``lost`` before the first fix; in a
+    gap between fixes ``bridged`` where the nearest fix is at most ``max_bridge_s`` away (else
+    ``lost``); after the last fix ``bridged`` up to ``max_bridge_s`` after it, then ``lost``."""
+    t = np.asarray(t, dtype=float)
+    fixed = np.asarray(fixed, dtype=bool)
+    last = np.maximum.accumulate(np.where(fixed, t, -np.inf))
+    following = np.minimum.accumulate(np.where(fixed, t, np.inf)[::-1])[::-1]
+    nearest = np.minimum(t - last, following - t)
+    status = np.where(nearest <= max_bridge_s, BRIDGED, LOST)
+    status = np.where(fixed, TRACKED, status)
+    status = np.where(np.isfinite(last), status, LOST)
+    return status.astype(str)
+
+
+def run_smoother(recording: Recording, params: KalmanParameters | None = None,
+                 **overrides: Any) -> SmootherRun:
+    """Forward :class:`KalmanFusion` pass storing rows, then the RTS backward pass."""
+    params = resolve_parameters(recording, params, overrides)
+    fusion = make_fusion(recording, params)
+    m = len(recording.mocap)
+    size = fusion.size
+    recorder = _RowRecorder(fusion, m)
+    x_predicted = np.full((m, size), np.nan)
+    P_predicted = np.full((m, size, size), np.nan)
+    transitions = np.full((m, size, size), np.nan)
+    fusion._interval = np.eye(size)
+
+    def on_row(row: int, outcome: UpdateOutcome) -> None:
+        recorder.record(row, outcome)
+        if fusion.initialised:
+            prior = fusion._prior
+            if prior is None:  # nothing fused at this row: the prediction is the state
+                prior = (recorder.x[row], recorder.P[row])
+            x_predicted[row], P_predicted[row] = prior
+            transitions[row] = fusion._interval
+        fusion._interval = np.eye(size)
+
+    process_recording(recording, fusion, on_row)
+    x_filtered, P_filtered = recorder.x, recorder.P
+    x_smoothed = np.full((m, size), np.nan)
+    P_smoothed = np.full((m, size, size), np.nan)
+    for first, stop in initialised_segments(recorder.outcome.astype(str),
+                                            recorder.initialised):
+        x_smoothed[first:stop], P_smoothed[first:stop] = rts_backward(
+            x_filtered[first:stop], P_filtered[first:stop], x_predicted[first:stop],
+            P_predicted[first:stop], transitions[first:stop])
+    t = np.array(recording.mocap.t)
+    fixed = recorder.fixed
+    filtered_status, since = status_from_fixes(t, fixed, recorder.initialised,
+                                               params.max_bridge_s)
+
+    def track(x: NDArray, P: NDArray, status: NDArray, method: str) -> TrackResult:
+        position, std = point_estimates(x, P, recorder.output_matrix, recorder.output_offset)
+        return TrackResult(t=t, position=position, std=std, status=status,
+                           time_since_fix=since, method=method)
+
+    return SmootherRun(
+        result=track(x_smoothed, P_smoothed, smoother_status(t, fixed, params.max_bridge_s),
+                     "smoother"),
+        filtered=track(x_filtered, P_filtered, filtered_status, "kalman"),
+        x=x_smoothed, P=P_smoothed, x_filtered=x_filtered, P_filtered=P_filtered,
+        outcome=recorder.outcome.astype(str), nis=recorder.nis, params=params)
+
+
+def smooth_recording(recording: Recording, params: KalmanParameters | None = None,
+                     **overrides: Any) -> TrackResult:
+    """Method ``smoother``: fixed-interval RTS estimate at every mocap row (offline gap filling).
+
+    Args:
+        recording: the recording (occluded mocap rows are NaN).
+        params: parameters; None builds them from ``recording.info.imu``.
+        overrides: parameter fields to replace.
+
+    Returns:
+        TrackResult: smoothed position (m), 1-sigma per axis from the smoothed P (m), status
+        (:func:`smoother_status`) and time since the last accepted fix (s, forward in time).
+    """
+    return run_smoother(recording, params, **overrides).result
