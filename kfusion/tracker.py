@@ -441,6 +441,8 @@ class _Estimator(Protocol):
 
     def finite(self) -> bool: ...
 
+    def resets(self) -> int: ...
+
     def snapshot(self) -> object: ...
 
     def restore(self, snapshot: object) -> None: ...
@@ -482,6 +484,9 @@ class _BaselineEstimator:
 
     def finite(self) -> bool:
         return True  # its state is rebuilt at every fix; the tracker checks every reading
+
+    def resets(self) -> int:
+        return 0
 
     def snapshot(self) -> object:
         return copy.deepcopy(self._tracker)
@@ -526,6 +531,10 @@ class _KalmanEstimator:
     def finite(self) -> bool:
         kf = self._fusion._kf  # read only, without the public properties' copies
         return bool(np.isfinite(kf.x).all() and np.isfinite(kf.P).all())
+
+    def resets(self) -> int:
+        """Times the fusion forgot an overflowing state by itself (its ``resets`` counter)."""
+        return int(self._fusion.counters["resets"])
 
     def snapshot(self) -> object:
         return self._fusion.snapshot()
@@ -1045,6 +1054,7 @@ class Tracker:
                 book.counts.lost_transitions += 1
                 book.status = LOST
         large = event[4] or t - previous > self._estimator.imu_dropout_s
+        resets_before = self._estimator.resets()
         try:
             if large:
                 with np.errstate(all="ignore"):
@@ -1060,6 +1070,11 @@ class Tracker:
             book.fix_time = -math.inf
             book.last_frame_fused = False
             outcome = self._apply(event)  # a fresh estimator: holds the sample or initialises
+        elif self._estimator.resets() > resets_before:
+            # the estimator forgot an overflowing state itself: the same restart for the books
+            book.counts.state_resets += 1
+            book.fix_time = -math.inf
+            book.last_frame_fused = False
         if stream == _MOCAP:
             self._count_fix(t, outcome)
         book.key = (t, stream)
