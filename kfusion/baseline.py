@@ -77,6 +77,7 @@ from numpy.typing import ArrayLike, NDArray
 from kfusion.conventions import (
     BRIDGED,
     LOST,
+    QUATERNION_NORM_TOLERANCE,
     TRACKED,
     integrate_gyroscope,
     matrix_from_wxyz,
@@ -497,7 +498,11 @@ class BaselineTracker:
             self._resolve_pending(None)
         if (position_array is None or quaternion_array is None
                 or not np.isfinite(position_array).all()
-                or not np.isfinite(quaternion_array).all()):
+                or not np.isfinite(quaternion_array).all()
+                or abs(float(np.linalg.norm(quaternion_array)) - 1.0)
+                > QUATERNION_NORM_TOLERANCE):
+            # no usable fix: the paper's method needs position and a unit orientation; a
+            # non-unit quaternion would poison the IMU-frame offset for good
             self._buffer_t.append(t)
             self._buffer_position.append(np.full(3, np.nan))
             self._count(OFFSET_HELD_OCCLUSION)

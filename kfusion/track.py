@@ -51,16 +51,18 @@ class TrackResult:
         unknown = set(np.unique(self.status)) - set(STATUSES)
         if unknown:
             raise ValueError(f"TrackResult.status: expected values in {STATUSES}, got {unknown}")
+        # a lost row has no estimate, whatever the method left in its arrays
+        lost = (np.asarray(self.status) == LOST)[:, None]
+        object.__setattr__(self, "position", np.where(lost, np.nan, self.position))
+        object.__setattr__(self, "std", np.where(lost, np.nan, np.asarray(self.std, float)))
 
     def __len__(self) -> int:
         return int(np.asarray(self.t).shape[0])
 
     def to_frame(self) -> pd.DataFrame:
         """The ``kfusion track`` table as a DataFrame (NaN where a cell is empty)."""
-        lost = np.asarray(self.status) == LOST
-        position = np.where(lost[:, None], np.nan, self.position)
-        std = np.where(lost[:, None], np.nan, self.std)
-        frame = pd.DataFrame(np.column_stack([self.t, position, std]), columns=TRACK_COLUMNS[:7])
+        frame = pd.DataFrame(np.column_stack([self.t, self.position, self.std]),
+                             columns=TRACK_COLUMNS[:7])
         frame["status"] = np.asarray(self.status, dtype=str)
         return frame
 

@@ -44,7 +44,8 @@ accelerometer at its range limit       accepted, flagged ``saturated``; the Kalm
                                        not frozen outright)
 mocap position None / NaN              occluded: no update, bridging
 mocap position inf                     rejected ``non_finite``
-mocap quaternion None / NaN            position-only update (orientation from the gyroscope)
+mocap quaternion None / NaN            kalman: position-only update (orientation from the
+                                       gyroscope); baseline: occluded
 mocap quaternion not unit (> 1e-3)     rejected ``bad_quaternion``
 mocap jump / marker swap               chi-square gate: rejected ``gated`` and counted; after
                                        ``reacquire_after_s`` without a fix the next fix is

@@ -426,3 +426,17 @@ def test_paper_command_smoke(tmp_path, capsys):
     per_gap = pd.read_csv(out / "per_gap.csv")
     assert (per_gap["max_mm"] >= per_gap["rms_mm"]).all()
     assert (out / "report.md").read_text().startswith("# The paper's tables")
+
+
+def test_a_non_unit_quaternion_is_not_a_fix_and_cannot_poison_the_offset():
+    tracker = BaselineTracker([1.0, 0.0, 0.0, 0.0])
+    rest = np.array([0.0, 0.0, 9.81])
+    for k in range(60):
+        t = k * 0.01
+        tracker.push_imu(t, rest, np.zeros(3))
+        quaternion = [0.0, 0.0, 0.0, 0.0] if k == 40 else [1.0, 0.0, 0.0, 0.0]
+        tracker.push_mocap(t, np.zeros(3), quaternion)
+    assert np.isfinite(tracker.offset).all()
+    tracker.push_imu(0.6, rest, np.zeros(3))
+    bridged = tracker.push_mocap(0.6, None, None)
+    assert bridged.status == "bridged" and np.isfinite(bridged.position).all()

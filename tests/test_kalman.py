@@ -287,8 +287,12 @@ def test_filterpy_filter_equals_the_numpy_reference(variant):
     np.testing.assert_array_equal(run.outcome, reference.outcome)
     np.testing.assert_allclose(run.x, reference.x, rtol=0, atol=1e-9)
     np.testing.assert_allclose(run.P, reference.P, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(run.result.position, reference.position, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(run.result.std, reference.std, rtol=0, atol=1e-12)
+    # the reference keeps its state on lost rows; a TrackResult carries no estimate there
+    shown = run.result.status != LOST
+    assert np.isnan(run.result.position[~shown]).all()
+    np.testing.assert_allclose(run.result.position[shown], reference.position[shown], rtol=0,
+                               atol=1e-9)
+    np.testing.assert_allclose(run.result.std[shown], reference.std[shown], rtol=0, atol=1e-12)
     np.testing.assert_allclose(run.nis, reference.nis, rtol=1e-9, atol=1e-9)
 
 
@@ -481,8 +485,10 @@ def test_status_is_bridged_then_lost_after_max_bridge():
     assert list(result.status[gap]) == list(np.where(since <= 0.5, BRIDGED, LOST))
     assert result.status[start - 1] == TRACKED and result.status[end] == TRACKED
     assert result.time_since_fix[end] == 0.0
-    # the uncertainty grows through the gap
-    assert np.all(np.diff(result.std[gap, 0]) > 0)
+    # the uncertainty grows through the gap while bridged; lost rows carry no estimate
+    bridged = result.status[gap] == BRIDGED
+    assert np.all(np.diff(result.std[gap, 0][bridged]) > 0)
+    assert np.isnan(result.std[gap][~bridged]).all()
 
 
 def test_estimate_extrapolates_without_changing_the_state():
@@ -589,3 +595,30 @@ def test_quaternion_products_compose_like_the_recording_convention():
     fusion.update(0.0, np.zeros(3), q_global_body)
     np.testing.assert_allclose(fusion.estimate().orientation,
                                quaternion_multiply(q_global_body, q_body_imu), atol=1e-15)
+
+
+def test_an_absurd_fix_after_a_long_gap_is_gated_not_fused():
+    # a finite but absurd position (1e200 m) overflows the innovation: fusing it as a
+    # re-acquisition would make the state NaN while the status still said tracked
+    fusion = quiet_fusion()
+    rest = np.array([0.0, 0.0, 9.81])
+    fusion.predict(0.0, rest, np.zeros(3))
+    fusion.update(0.0, np.zeros(3), IDENTITY)
+    fusion.predict(2.0, rest, np.zeros(3))
+    outcome = fusion.update(2.0, np.full(3, 1e200), IDENTITY)
+    assert outcome.kind == GATED
+    step = fusion.estimate()
+    assert np.isfinite(step.position).all() and np.isfinite(fusion.P).all()
+    # a plausible fix is still accepted as the re-acquisition afterwards
+    assert fusion.update(2.01, np.zeros(3), IDENTITY).kind == REACQUIRED
+
+
+def test_a_non_unit_quaternion_gives_a_position_only_fix():
+    fusion = quiet_fusion()
+    fusion.predict(0.0, np.array([0.0, 0.0, 9.81]), np.zeros(3))
+    fusion.update(0.0, np.zeros(3), IDENTITY)
+    fusion.predict(0.01, np.array([0.0, 0.0, 9.81]), np.zeros(3))
+    # twice a 90-degree turn about z: not unit, so the orientation must not jump to it
+    turned = 2.0 * np.array([math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)])
+    assert fusion.update(0.01, np.zeros(3), turned).kind == ACCEPTED
+    np.testing.assert_allclose(np.abs(fusion.estimate().orientation), IDENTITY, atol=1e-6)

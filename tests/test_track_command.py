@@ -56,3 +56,12 @@ def test_track_rejects_malformed_option(recording_folder, tmp_path, capsys):
                    "--set", "max_bridge_s"])
     assert status == 2
     assert "--set: expected KEY=VALUE, got 'max_bridge_s'" in capsys.readouterr().err
+
+
+def test_lost_rows_carry_no_estimate_in_memory():
+    from kfusion.track import TrackResult
+
+    result = TrackResult(t=np.array([0.0, 0.01]), position=np.ones((2, 3)), std=np.ones((2, 3)),
+                         status=np.array(["tracked", LOST]), time_since_fix=np.zeros(2))
+    assert np.isfinite(result.position[0]).all() and np.isnan(result.position[1]).all()
+    assert np.isnan(result.std[1]).all()

@@ -76,7 +76,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
-from kfusion.conventions import BRIDGED, LOST, TRACKED
+from kfusion.conventions import BRIDGED, LOST, QUATERNION_NORM_TOLERANCE, TRACKED
 from kfusion.kalman import model
 from kfusion.kalman.orientation import (
     OrientationState,
@@ -388,8 +388,8 @@ class KalmanFusion:
             z = None
         if q_global_body is not None:
             norm = float(np.linalg.norm(q_global_body))
-            if not math.isfinite(norm) or norm == 0.0:
-                q_global_body = None
+            if not math.isfinite(norm) or abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+                q_global_body = None  # not a unit quaternion: a position-only fix
         return self._update_valid(t, z, q_global_body)
 
     def estimate(self, t: float | None = None) -> FilterStep:
@@ -616,6 +616,10 @@ class KalmanFusion:
         S = H @ P @ H.T + self._kf.R
         nis = model.normalised_innovation_squared(y, S)
         self._last_nis = nis
+        if not (math.isfinite(nis) and math.isfinite(float(y @ y))):
+            # an absurd (finite but huge) fix overflows the innovation: never fuse it
+            self._counters["gated"] += 1
+            return UpdateOutcome(t, GATED, nis)
         since = t - self._last_fix if self._last_fix is not None else math.inf
         kind = ACCEPTED
         if since >= self.params.reacquire_after_s:
