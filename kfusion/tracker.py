@@ -87,6 +87,7 @@ from kfusion.conventions import (
     QUATERNION_NORM_TOLERANCE,
     TRACKED,
 )
+from kfusion.kalman.filter import ACCEPTED, GATED, OCCLUDED, REACQUIRED
 from kfusion.profiles import ImuProfile, imu_profile
 from kfusion.recording import RecordingInfo
 
@@ -94,16 +95,11 @@ from kfusion.recording import RecordingInfo
 # Reasons (the strings of PushOutcome.reason and the keys of the health counters)
 # ---------------------------------------------------------------------------------------------
 
-ACCEPTED: Final = "accepted"
-"""IMU sample fused, or mocap fix fused through the gate."""
+# ACCEPTED (IMU sample fused, or mocap fix fused through the gate), REACQUIRED (fix fused as a
+# re-acquisition after a long gap), OCCLUDED (frame without a position) and GATED (fix rejected by
+# the chi-square gate) are the Kalman filter's own outcome strings, imported so they cannot drift.
 SATURATED: Final = "saturated"
 """IMU sample fused with an accelerometer axis at its range limit (flag, not a rejection)."""
-REACQUIRED: Final = "reacquired"
-"""Mocap fix fused as a re-acquisition after a long gap (accepted without gating)."""
-OCCLUDED: Final = "occluded"
-"""Mocap frame without a position (None or NaN): no update."""
-GATED: Final = "gated"
-"""Mocap fix rejected by the chi-square innovation gate (jump, marker swap)."""
 NON_FINITE: Final = "non_finite"
 OUT_OF_ORDER: Final = "out_of_order"
 DUPLICATE: Final = "duplicate"
