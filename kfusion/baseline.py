@@ -77,12 +77,14 @@ from numpy.typing import ArrayLike, NDArray
 from kfusion.conventions import (
     BRIDGED,
     LOST,
+    MAX_BRIDGE_LIMIT_S,
     QUATERNION_NORM_TOLERANCE,
     TRACKED,
     integrate_gyroscope,
     matrix_from_wxyz,
     quaternion_multiply,
 )
+from kfusion.guards import real_number, refuse_masked, short_repr
 from kfusion.recording import Recording
 from kfusion.track import TrackResult
 
@@ -154,8 +156,9 @@ class BaselineParameters:
         _check_number("acceleration_threshold", self.acceleration_threshold, low=0.0,
                       expected="a positive number of m/s^2", low_open=True)
         _check_number("gain", self.gain, low=0.0, expected="a positive number", low_open=True)
-        _check_number("max_bridge_s", self.max_bridge_s, low=0.0,
-                      expected="a positive number of seconds", low_open=True)
+        _check_number("max_bridge_s", self.max_bridge_s, low=0.0, high=MAX_BRIDGE_LIMIT_S,
+                      expected=f"a positive number of seconds, at most {MAX_BRIDGE_LIMIT_S:g}",
+                      low_open=True)
 
     @property
     def nv(self) -> int:
@@ -169,7 +172,7 @@ class BaselineParameters:
             raise ValueError(f"BaselineParameters: expected a mapping of parameter names, got "
                              f"{type(mapping).__name__}")
         names = [f.name for f in dataclasses.fields(cls)]
-        unknown = sorted(set(mapping) - set(names))
+        unknown = sorted(set(map(str, mapping)) - set(names))
         if unknown:
             raise ValueError(f"BaselineParameters: unknown parameter(s) {unknown}; expected "
                              f"some of {names}")
@@ -186,21 +189,29 @@ class BaselineParameters:
         return BaselineParameters.from_mapping({**current, **overrides})
 
 
-def _check_integer(name: str, value: object, *, minimum: int) -> None:
+MAX_BUFFER_SIZE: Final = 10_000
+"""Largest ``buffer_size`` (mocap frames: 100 s at 100 Hz)."""
+
+
+def _check_integer(name: str, value: object, *, minimum: int,
+                   maximum: int = MAX_BUFFER_SIZE) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         raise ValueError(f"BaselineParameters.{name}: expected an integer >= {minimum}, "
-                         f"got {value!r}")
+                         f"got {short_repr(value)}")
+    if value > maximum:
+        raise ValueError(f"BaselineParameters.{name}: expected an integer <= {maximum}, "
+                         f"got {short_repr(value)}")
 
 
 def _check_number(name: str, value: object, *, low: float, expected: str,
                   high: float = np.inf, low_open: bool = False) -> None:
-    ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
-    if ok:
-        number = float(value)  # type: ignore[arg-type]
-        ok = bool(np.isfinite(number) and (number > low if low_open else number >= low)
-                  and number <= high)
+    number = real_number(value)
+    ok = number is not None and bool(np.isfinite(number)
+                                     and (number > low if low_open else number >= low)
+                                     and number <= high)
     if not ok:
-        raise ValueError(f"BaselineParameters.{name}: expected {expected}, got {value!r}")
+        raise ValueError(f"BaselineParameters.{name}: expected {expected}, "
+                         f"got {short_repr(value)}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -484,6 +495,7 @@ class BaselineTracker:
         position_array = None if position is None else _vector3("position", position)
         quaternion_array = None
         if quaternion is not None:
+            refuse_masked("quaternion", quaternion)
             quaternion_array = np.asarray(quaternion, dtype=float)
             if quaternion_array.shape != (4,):
                 raise ValueError(f"quaternion: expected shape (4,) [w, x, y, z], got "
@@ -648,6 +660,7 @@ class BaselineTracker:
 
 
 def _vector3(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    refuse_masked(name, value)
     array = np.asarray(value, dtype=float)
     if array.shape != (3,):
         raise ValueError(f"{name}: expected shape (3,), got {array.shape}")

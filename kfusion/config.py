@@ -52,7 +52,6 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
 import numpy as np
-import yaml
 from pydantic import (
     BaseModel,
     BeforeValidator,
@@ -65,6 +64,7 @@ from pydantic import (
 )
 
 from kfusion.experiment import ScoredRecording
+from kfusion.guards import YamlError, load_yaml, short_repr
 from kfusion.methods import METHODS
 from kfusion.profiles import IMU_PROFILES
 from kfusion.recording import ImuSamples, MocapFrames, Recording
@@ -131,11 +131,6 @@ def _format_path(parts: Iterable[str | int]) -> str:
         else:
             text += ("." if text else "") + str(part)
     return text
-
-
-def _short(value: Any, limit: int = 60) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 # --------------------------------------------------------------------------------------------
@@ -375,6 +370,19 @@ class OutputConfig(_Strict):
     plots: PlotsConfig = Field(default=PlotsConfig())
 
 
+def plain_name(value: str) -> str:
+    """``value`` if it can name a folder inside the output root (``kfusion-output/<name>``):
+    one path component, not ``.`` or ``..``, no path separator, drive or control character;
+    ValueError otherwise, so a config name never writes outside the output folder."""
+    bad = [character for character in ("/", "\\", ":", "\0") if character in value]
+    if (bad or value in (".", "..") or value != value.strip()
+            or any(ord(character) < 32 for character in value)):
+        raise ValueError("expected a plain name (one folder name: no '/', '\\', ':', "
+                         "leading or trailing spaces, control characters, '.' or '..'), "
+                         f"got {short_repr(value)}")
+    return value
+
+
 def _seeds(value: Any) -> Any:
     if isinstance(value, int) and not isinstance(value, bool):
         if value < 1:
@@ -403,6 +411,11 @@ class RunConfig(_Strict):
         description="random seeds (simulation, gap cutting); n means 0..n-1")
     output: OutputConfig = Field(default=OutputConfig())
     quick: bool = Field(default=False, description="shrink data for smoke tests (set by --quick)")
+
+    @field_validator("name")
+    @classmethod
+    def _plain_name(cls, value: str) -> str:
+        return plain_name(value)
 
     @field_validator("seeds")
     @classmethod
@@ -532,14 +545,15 @@ def _issues_from_validation(error: ValidationError, model: type[BaseModel], raw:
         elif kind == "missing":
             issues.append(ConfigIssue(path, "required key is missing"))
         elif kind in ("union_tag_invalid", "union_tag_not_found"):
-            issues.append(ConfigIssue(_format_path([*kept, "kind"]),
-                                      f"expected one of {list(DATA_KINDS)}, got "
-                                      f"{_short(node.get('kind'), 40)}" if isinstance(node, Mapping)
-                                      else f"expected a mapping with a kind, got {_short(node)}"))
+            issues.append(ConfigIssue(
+                _format_path([*kept, "kind"]),
+                f"expected one of {list(DATA_KINDS)}, got {short_repr(node.get('kind'), 40)}"
+                if isinstance(node, Mapping)
+                else f"expected a mapping with a kind, got {short_repr(node)}"))
         else:
             message = str(item["msg"]).removeprefix("Value error, ")
             if kept and "got " not in message:
-                message += f", got {_short(item.get('input'))}"
+                message += f", got {short_repr(item.get('input'))}"
             issues.append(ConfigIssue(path, message))
     # a union reports one error per member; keep the most specific ones
     unique: dict[tuple[str, str], ConfigIssue] = {}
@@ -607,7 +621,7 @@ def check_methods(methods: Mapping[str, Mapping[str, Any]]
                 values[key] = TypeAdapter(fields[key]).validate_python(value)
             except ValidationError as error:
                 reason = str(error.errors()[0]["msg"])
-                issues.append(ConfigIssue(path, f"{reason}, got {_short(value)}"))
+                issues.append(ConfigIssue(path, f"{reason}, got {short_repr(value)}"))
             except Exception:  # an annotation pydantic cannot check: keep the value
                 values[key] = value
         if len(values) == len(overrides):
@@ -766,7 +780,8 @@ def _expand_sweep(raw: Mapping[str, Any], file: str | Path | None, base_dir: Pat
         try:
             config = _validate_run(point_raw(assignment), file=file, base_dir=base_dir)
         except ConfigError as error:
-            where = ", ".join(f"{axis}={_short(value, 30)}" for axis, value in assignment.items())
+            where = ", ".join(f"{axis}={short_repr(value, 30)}"
+                              for axis, value in assignment.items())
             raise ConfigError(file, [ConfigIssue(f"grid point ({where}): {issue.path}",
                                                  issue.message) for issue in error.issues]
                               ) from None
@@ -806,41 +821,17 @@ def default_heatmaps(value_counts: Mapping[str, int]) -> tuple[HeatmapConfig, ..
 # loading
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """SafeLoader that refuses a key given twice in one mapping."""
-
-
-def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False
-                       ) -> dict[Any, Any]:
-    seen: set[Any] = set()
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
-        if key in seen:
-            raise yaml.constructor.ConstructorError(
-                None, None, f"duplicate key {key!r}", key_node.start_mark)
-        seen.add(key)
-    return loader.construct_mapping(node, deep=deep)
-
-
-_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
-                                 _construct_mapping)
-
-
 def read_yaml(path: str | Path) -> dict[str, Any]:
-    """The YAML mapping in ``path``; ConfigError (file, line) for unreadable or non-mapping
-    files."""
+    """The YAML mapping in ``path`` (read by :func:`kfusion.guards.load_yaml`: bounded, UTF-8,
+    no duplicate keys); ConfigError (file, line) for unreadable or non-mapping files."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"config file not found: {path}")
     try:
-        raw = yaml.load(path.read_text(encoding="utf-8"), Loader=_UniqueKeyLoader)  # noqa: S506
-    except yaml.MarkedYAMLError as error:
-        mark = error.problem_mark
-        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-        raise ConfigError(path, [ConfigIssue("", f"invalid YAML at {where}{error.problem}")]
-                          ) from None
-    except yaml.YAMLError as error:
-        raise ConfigError(path, [ConfigIssue("", f"invalid YAML: {error}")]) from None
+        raw = load_yaml(path)
+    except YamlError as error:
+        reason = f"invalid YAML at {error.reason}" if error.syntax else error.reason
+        raise ConfigError(path, [ConfigIssue("", reason)]) from None
     if not isinstance(raw, dict):
         raise ConfigError(path, [ConfigIssue("", "expected a mapping of keys (data, methods, "
                                              f"...), got {type(raw).__name__}")])

@@ -57,6 +57,11 @@ BRIDGED: Final = "bridged"
 LOST: Final = "lost"
 STATUSES: Final = (TRACKED, BRIDGED, LOST)
 
+MAX_BRIDGE_LIMIT_S: Final = 60.0
+"""Largest ``max_bridge_s`` (s) any method accepts. Dead reckoning a limb from a consumer IMU
+drifts by metres within tens of seconds, and kfusion targets 0.1-1 s occlusions; a larger value
+(say 1e300) is a mistake, refused rather than bridged "forever"."""
+
 QUATERNION_NORM_TOLERANCE: Final = 1e-3
 """Largest accepted | |q| - 1 | for a quaternion read from a file."""
 

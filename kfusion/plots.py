@@ -23,6 +23,7 @@ from matplotlib.ticker import FuncFormatter  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from kfusion.conventions import LOST  # noqa: E402
+from kfusion.guards import atomic_write  # noqa: E402
 from kfusion.recording import occlusion_runs  # noqa: E402
 from kfusion.track import TrackResult  # noqa: E402
 
@@ -33,8 +34,9 @@ AXIS_NAMES = ("x", "y", "z")
 def _save(figure: Figure, path: str | Path | None) -> Figure:
     if path is not None:
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        figure.savefig(path, dpi=120, bbox_inches="tight")
+        image_format = path.suffix.lstrip(".") or "png"
+        atomic_write(path, lambda temporary: figure.savefig(temporary, format=image_format,
+                                                            dpi=120, bbox_inches="tight"))
     return figure
 
 

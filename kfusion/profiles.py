@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kfusion.conventions import STANDARD_GRAVITY
+from kfusion.guards import short_repr
 
 MILLI_G = 1e-3 * STANDARD_GRAVITY
 MICRO_G = 1e-6 * STANDARD_GRAVITY
@@ -152,19 +153,15 @@ MOCAP_PROFILES: dict[str, MocapProfile] = {OPTITRACK.name: OPTITRACK}
 
 def imu_profile(name: str) -> ImuProfile:
     """The IMU profile called ``name``; ValueError listing the known names otherwise."""
-    try:
+    if isinstance(name, str) and name.lower() in IMU_PROFILES:
         return IMU_PROFILES[name.lower()]
-    except KeyError:
-        raise ValueError(
-            f"unknown IMU profile {name!r}; expected one of {sorted(IMU_PROFILES)}"
-        ) from None
+    raise ValueError(f"unknown IMU profile {short_repr(name)}; expected one of "
+                     f"{sorted(IMU_PROFILES)}")
 
 
 def mocap_profile(name: str) -> MocapProfile:
     """The mocap profile called ``name``; ValueError listing the known names otherwise."""
-    try:
+    if isinstance(name, str) and name.lower() in MOCAP_PROFILES:
         return MOCAP_PROFILES[name.lower()]
-    except KeyError:
-        raise ValueError(
-            f"unknown mocap profile {name!r}; expected one of {sorted(MOCAP_PROFILES)}"
-        ) from None
+    raise ValueError(f"unknown mocap profile {short_repr(name)}; expected one of "
+                     f"{sorted(MOCAP_PROFILES)}")

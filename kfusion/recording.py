@@ -37,6 +37,15 @@ from kfusion.conventions import (
     MOCAP_COLUMNS,
     QUATERNION_NORM_TOLERANCE,
 )
+from kfusion.guards import (
+    YamlError,
+    atomic_write,
+    atomic_write_text,
+    load_yaml,
+    refuse_masked,
+    short_repr,
+)
+from kfusion.profiles import IMU_PROFILES, imu_profile
 
 IMU_FILE = "imu.csv"
 MOCAP_FILE = "mocap.csv"
@@ -92,7 +101,8 @@ class RecordingError(ValueError):
         super().__init__(", ".join(where) + ": " + reason)
 
 
-def _frozen(array: NDArray) -> NDArray:
+def _frozen(array: NDArray, where: str = "array") -> NDArray:
+    refuse_masked(where, array)
     array = np.array(array, dtype=float, copy=True)
     array.flags.writeable = False
     return array
@@ -113,9 +123,9 @@ class ImuSamples:
     gyroscope: NDArray[np.float64]
 
     def __post_init__(self) -> None:
-        t = _frozen(self.t)
-        accelerometer = _frozen(self.accelerometer)
-        gyroscope = _frozen(self.gyroscope)
+        t = _frozen(self.t, "ImuSamples.t")
+        accelerometer = _frozen(self.accelerometer, "ImuSamples.accelerometer")
+        gyroscope = _frozen(self.gyroscope, "ImuSamples.gyroscope")
         n = t.shape[0] if t.ndim == 1 else -1
         for name, value, shape in (("accelerometer", accelerometer, (n, 3)),
                                    ("gyroscope", gyroscope, (n, 3))):
@@ -145,9 +155,9 @@ class MocapFrames:
     quaternion: NDArray[np.float64]
 
     def __post_init__(self) -> None:
-        t = _frozen(self.t)
-        position = _frozen(self.position)
-        quaternion = _frozen(self.quaternion)
+        t = _frozen(self.t, "MocapFrames.t")
+        position = _frozen(self.position, "MocapFrames.position")
+        quaternion = _frozen(self.quaternion, "MocapFrames.quaternion")
         n = t.shape[0] if t.ndim == 1 else -1
         if t.ndim != 1 or position.shape != (n, 3) or quaternion.shape != (n, 4):
             raise ValueError(
@@ -420,11 +430,14 @@ def _vector(file: str, data: dict, key: str, length: int, required: bool = True
     try:
         array = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise RecordingError(file, f"expected a list of {length} numbers, got {value!r}",
-                             key=key) from None
+        raise RecordingError(file, f"expected a list of {length} numbers, got "
+                             f"{short_repr(value)}", key=key) from None
+    except OverflowError:
+        raise RecordingError(file, f"expected a list of {length} finite numbers, got "
+                             f"{short_repr(value)}", key=key) from None
     if array.shape != (length,) or not np.isfinite(array).all():
-        raise RecordingError(file, f"expected a list of {length} finite numbers, got {value!r}",
-                             key=key)
+        raise RecordingError(file, f"expected a list of {length} finite numbers, got "
+                             f"{short_repr(value)}", key=key)
     return array
 
 
@@ -436,10 +449,10 @@ def parse_info(data: object, file: str = META_FILE) -> RecordingInfo:
     if not isinstance(data, dict):
         raise RecordingError(file, f"expected a mapping with keys {list(KNOWN_INFO_KEYS)}, "
                              f"got {type(data).__name__}")
-    unknown = sorted(set(data) - set(KNOWN_INFO_KEYS))
+    unknown = sorted(str(key) for key in set(data) - set(KNOWN_INFO_KEYS))
     if unknown:
         raise RecordingError(file, f"unknown key; expected only {list(KNOWN_INFO_KEYS)}",
-                             key=str(unknown[0]))
+                             key=short_repr(unknown[0]).strip("'"))
     imu_to_body = _vector(file, data, "imu_to_body", 4)
     assert imu_to_body is not None
     if abs(np.linalg.norm(imu_to_body) - 1.0) > QUATERNION_NORM_TOLERANCE:
@@ -457,7 +470,8 @@ def parse_info(data: object, file: str = META_FILE) -> RecordingInfo:
                              "looks like mm; expected m", key="lever_arm")
     for key in ("name", "imu"):
         if key in data and data[key] is not None and not isinstance(data[key], str):
-            raise RecordingError(file, f"expected a string, got {data[key]!r}", key=key)
+            raise RecordingError(file, f"expected a string, got {short_repr(data[key])}",
+                                 key=key)
     return RecordingInfo(imu_to_body=imu_to_body, gravity=gravity, name=data.get("name"),
                          imu=data.get("imu"), lever_arm=lever_arm)
 
@@ -468,10 +482,27 @@ def read_info(path: str | Path) -> RecordingInfo:
     if not path.is_file():
         raise RecordingError(path.name, f"file not found in {path.parent}")
     try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
-        raise RecordingError(path.name, f"not valid YAML ({error})".replace("\n", " ")) from None
-    return parse_info(data, path.name)
+        data = load_yaml(path, label=path.name)
+    except YamlError as error:
+        reason = f"not valid YAML ({error.reason})" if error.syntax else error.reason
+        raise RecordingError(path.name, reason) from None
+    info = parse_info(data, path.name)
+    check_imu_profile(info, path.name)
+    return info
+
+
+def check_imu_profile(info: RecordingInfo, file: str = META_FILE) -> None:
+    """RecordingError (key ``imu``) when ``info.imu`` names no known IMU profile: the same
+    lookup (:func:`kfusion.profiles.imu_profile`) the methods use, so ``kfusion check`` refuses
+    what ``kfusion track`` would."""
+    if info.imu is None:
+        return
+    try:
+        imu_profile(info.imu)
+    except ValueError:
+        raise RecordingError(file, f"unknown IMU profile {short_repr(info.imu)}; expected one of "
+                             f"{sorted(IMU_PROFILES)} (or no imu key for the default)",
+                             key="imu") from None
 
 
 def read_recording(folder: str | Path, *, zero_position_means_occluded: bool = False) -> Recording:
@@ -496,7 +527,7 @@ def _write_csv(path: Path, columns: Sequence[str], values: NDArray) -> None:
     # pandas writes floats with repr(), the shortest string that reads back to the same double,
     # so write -> read round-trips exactly. NaN becomes an empty cell.
     frame = pd.DataFrame(np.asarray(values, dtype=float), columns=list(columns))
-    frame.to_csv(path, index=False, na_rep="")
+    atomic_write(path, lambda temporary: frame.to_csv(temporary, index=False, na_rep=""))
 
 
 def info_to_dict(info: RecordingInfo) -> dict:
@@ -522,5 +553,6 @@ def write_recording(recording: Recording, folder: str | Path) -> Path:
     mocap = recording.mocap
     _write_csv(folder / MOCAP_FILE, MOCAP_COLUMNS,
                np.column_stack([mocap.t, mocap.position, mocap.quaternion]))
-    (folder / META_FILE).write_text(yaml.safe_dump(info_to_dict(recording.info), sort_keys=False))
+    atomic_write_text(folder / META_FILE,
+                      yaml.safe_dump(info_to_dict(recording.info), sort_keys=False))
     return folder

@@ -28,6 +28,7 @@ distributed cluster (:class:`DaskExecutor`); both yield finished runs in complet
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import signal
@@ -50,6 +51,7 @@ import kfusion
 from kfusion.config import RunConfig, SweepConfig, fingerprint
 from kfusion.evaluate import GapErrors, metrics_from_errors
 from kfusion.experiment import MethodRun, ScoredRecording, run_method, summary_table
+from kfusion.guards import atomic_write, atomic_write_text
 from kfusion.track import TrackResult
 
 AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
@@ -158,7 +160,7 @@ class ExperimentResult:
         for file_name, table, index in (("summary.csv", self.summary(), True),
                                         ("per_recording.csv", self.per_recording(), True),
                                         ("per_gap.csv", self.per_gap(), False)):
-            table.to_csv(directory / file_name, index=index)
+            atomic_write(directory / file_name, functools.partial(table.to_csv, index=index))
             written.append(directory / file_name)
         plots = self.config.output.plots
         if plots.trajectory:
@@ -412,10 +414,8 @@ class SweepStore:
         ``os.replace``), so a run file is either complete or absent."""
         self.runs_directory.mkdir(parents=True, exist_ok=True)
         path = self.path(str(row["run_id"]), int(row["seed"]))
-        temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        pd.DataFrame([dict(row)]).to_parquet(temporary, index=False)
-        os.replace(temporary, path)
-        return path
+        frame = pd.DataFrame([dict(row)])
+        return atomic_write(path, lambda temporary: frame.to_parquet(temporary, index=False))
 
     def read(self, run_id: str, seed: int) -> dict[str, Any]:
         path = self.path(run_id, seed)
@@ -578,7 +578,7 @@ def run_sweep(config: SweepConfig, out: str | Path | None = None, *, workers: in
     store = SweepStore(directory)
     tasks, skipped = plan_sweep(config, store)
     directory.mkdir(parents=True, exist_ok=True)
-    (directory / "sweep.json").write_text(json.dumps(
+    atomic_write_text(directory / "sweep.json", json.dumps(
         {"name": config.name, "grid": config.grid, "seeds": config.seeds,
          "base": config.base.model_dump(mode="json")}, indent=2, default=str) + "\n")
     ran = 0
@@ -604,9 +604,10 @@ def run_sweep(config: SweepConfig, out: str | Path | None = None, *, workers: in
                 executor.close()
     results = collect_results(config, store)
     if not results.empty:
-        results.to_parquet(directory / RESULTS_FILE, index=False)
+        atomic_write(directory / RESULTS_FILE,
+                     lambda temporary: results.to_parquet(temporary, index=False))
     summary = summarise_results(results, config.axes)
-    summary.to_csv(directory / SUMMARY_FILE)
+    atomic_write(directory / SUMMARY_FILE, summary.to_csv)
     figures = draw_heatmaps(config, results, directory)
     return SweepResult(directory=directory, results=results, summary=summary, ran=ran,
                        skipped=skipped, failed=failed, figures=figures)

@@ -19,6 +19,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from kfusion.conventions import LOST, STATUSES, TRACK_COLUMNS
+from kfusion.guards import atomic_write
 
 
 @dataclass(frozen=True)
@@ -68,11 +69,10 @@ class TrackResult:
 
 
 def write_track_csv(result: TrackResult, path: str | Path) -> Path:
-    """Write the ``kfusion track`` CSV. Empty cells for NaN. Returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    result.to_frame().to_csv(path, index=False, na_rep="")
-    return path
+    """Write the ``kfusion track`` CSV atomically (:func:`kfusion.guards.atomic_write`: a failed
+    write leaves any previous file intact). Empty cells for NaN. Returns the path."""
+    frame = result.to_frame()
+    return atomic_write(path, lambda temporary: frame.to_csv(temporary, index=False, na_rep=""))
 
 
 def read_track_csv(path: str | Path) -> pd.DataFrame:

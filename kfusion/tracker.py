@@ -77,7 +77,6 @@ from types import MappingProxyType
 from typing import Any, Final, Protocol
 
 import numpy as np
-import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from kfusion.conventions import (
@@ -87,6 +86,7 @@ from kfusion.conventions import (
     QUATERNION_NORM_TOLERANCE,
     TRACKED,
 )
+from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, short_repr
 from kfusion.kalman.filter import ACCEPTED, GATED, OCCLUDED, REACQUIRED
 from kfusion.profiles import ImuProfile, imu_profile
 from kfusion.recording import RecordingInfo
@@ -257,13 +257,14 @@ class TrackerOptions:
             value = getattr(self, name)
             if value is None and name == "accelerometer_range":
                 continue
-            if isinstance(value, bool) or not isinstance(value, Real) or math.isnan(value) \
-                    or value < 0 or (positive and value == 0) \
-                    or (math.isinf(value) and name != "accelerometer_range"):
+            number = real_number(value)
+            if number is None or math.isnan(number) \
+                    or number < 0 or (positive and number == 0) \
+                    or (math.isinf(number) and name != "accelerometer_range"):
                 need = "> 0" if positive else ">= 0"
                 raise ValueError(f"TrackerOptions.{name}: expected a finite number {need}, "
-                                 f"got {value!r}")
-            object.__setattr__(self, name, float(value))
+                                 f"got {short_repr(value)}")
+            object.__setattr__(self, name, number)
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any]) -> TrackerOptions:
@@ -271,9 +272,10 @@ class TrackerOptions:
         if not isinstance(mapping, Mapping):
             raise ValueError(f"TrackerOptions: expected a mapping, got {type(mapping).__name__}")
         names = [f.name for f in dataclasses.fields(cls)]
-        unknown = sorted(set(mapping) - set(names))
+        unknown = sorted(set(map(str, mapping)) - set(names))
         if unknown:
-            raise ValueError(f"TrackerOptions: unknown key {unknown[0]!r}; expected some of "
+            raise ValueError(f"TrackerOptions: unknown key {short_repr(unknown[0])}; expected "
+                             "some of "
                              f"{names}")
         return cls(**dict(mapping))
 
@@ -386,6 +388,7 @@ def _vector(where: str, name: str, value: object, size: int, unit: str) -> NDArr
 
     Non-finite values pass (the caller rejects or interprets them).
     """
+    refuse_masked(f"{where}: {name}", value)
     try:
         array = np.asarray(value)
     except (TypeError, ValueError):
@@ -653,8 +656,9 @@ class Tracker:
         lever = None if lever_arm is None else _vector("Tracker", "lever_arm", lever_arm, 3, "m")
         if lever is not None and not np.isfinite(lever).all():
             raise ValueError("Tracker: lever_arm: expected 3 finite numbers (m), got non-finite")
-        if method not in METHODS:
-            raise ValueError(f"Tracker: method: expected one of {list(METHODS)}, got {method!r}")
+        if not isinstance(method, str) or method not in METHODS:
+            raise ValueError(f"Tracker: method: expected one of {list(METHODS)}, got "
+                             f"{short_repr(method)}")
         profile = imu if isinstance(imu, ImuProfile) else imu_profile(imu or "mpu9255")
         if isinstance(options, Mapping):
             options = TrackerOptions.from_mapping(options)
@@ -710,7 +714,7 @@ class Tracker:
                              f"{type(mapping).__name__}")
         unknown = sorted(set(map(str, mapping)) - set(CONFIG_KEYS))
         if unknown:
-            raise ValueError(f"{source}: unknown key {unknown[0]!r}; expected some of "
+            raise ValueError(f"{source}: unknown key {short_repr(unknown[0])}; expected some of "
                              f"{list(CONFIG_KEYS)}")
         for key in ("imu_to_body", "gravity"):
             if key not in mapping:
@@ -723,9 +727,9 @@ class Tracker:
                 raise ValueError(f"{source}: {key}: {error}") from None
 
         method = mapping.get("method", "kalman")
-        if method not in METHODS:
+        if not isinstance(method, str) or method not in METHODS:
             raise ValueError(f"{source}: method: expected one of {list(METHODS)}, got "
-                             f"{method!r}")
+                             f"{short_repr(method)}")
         imu = mapping.get("imu")
         profile = section("imu", lambda: imu_profile(imu or "mpu9255")) if not isinstance(
             imu, ImuProfile) else imu
@@ -746,9 +750,10 @@ class Tracker:
         if not path.is_file():
             raise ValueError(f"{path}: file not found")
         try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as error:
-            raise ValueError(f"{path}: not valid YAML ({error})".replace("\n", " ")) from None
+            data = load_yaml(path)
+        except YamlError as error:
+            reason = f"not valid YAML ({error.reason})" if error.syntax else error.reason
+            raise ValueError(f"{path}: {reason}") from None
         return cls.from_mapping(data, source=str(path))
 
     def _new_estimator(self) -> _Estimator:

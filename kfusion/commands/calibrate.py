@@ -28,6 +28,7 @@ from kfusion.calibration import (
     calibrate_imu_to_body,
 )
 from kfusion.conventions import OPTITRACK_GRAVITY
+from kfusion.guards import atomic_write_text
 from kfusion.recording import (
     IMU_FILE,
     META_FILE,
@@ -102,8 +103,7 @@ def load_for_calibration(folder: Path, gravity: list[float] | None,
 def _write(path: Path, text: str, force: bool) -> None:
     if path.exists() and not force:
         raise FileExistsError(f"{path} exists; pass --force to overwrite it")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text)
+    atomic_write_text(path, text)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,9 +6,10 @@ import argparse
 from typing import Any
 
 import numpy as np
-import yaml
 
+from kfusion.config import check_methods
 from kfusion.conventions import STATUSES
+from kfusion.guards import YamlError, load_yaml_text, short_repr
 from kfusion.methods import METHODS, track_recording
 from kfusion.recording import read_recording
 from kfusion.track import write_track_csv
@@ -18,15 +19,32 @@ HELP = "Estimate the position at every mocap row of a recording and write the tr
 ORDER = 30
 
 
-def parse_options(pairs: list[str] | None) -> dict[str, Any]:
-    """``["key=value", ...]`` -> dict, with values parsed as YAML scalars (numbers, true/false)."""
+def parse_options(pairs: list[str] | None, method: str | None = None) -> dict[str, Any]:
+    """``["key=value", ...]`` -> dict, values read as YAML scalars (numbers, true/false, null)
+    by the bounded loader. With ``method``, each value is checked and converted to its field's
+    type (``1e-3`` -> 0.001) as a config's overrides are; ValueError naming ``--set KEY``."""
     options: dict[str, Any] = {}
     for pair in pairs or []:
         key, separator, value = pair.partition("=")
+        key = key.strip()
         if not separator or not key:
-            raise ValueError(f"--set: expected KEY=VALUE, got {pair!r}")
-        options[key.strip()] = yaml.safe_load(value)
-    return options
+            raise ValueError(f"--set: expected KEY=VALUE, got {short_repr(pair)}")
+        try:
+            options[key] = load_yaml_text(value, f"--set {key}")
+        except YamlError as error:
+            raise ValueError(f"--set {short_repr(key).strip(chr(39))}: expected a number, "
+                             f"true/false or null, got {short_repr(value)} ({error.reason})"
+                             ) from None
+    if method is None or not options:
+        return options
+    converted, issues = check_methods({method: options})
+    if issues:
+        prefix = f"methods.{method}"
+        raise ValueError("; ".join(
+            f"--set {issue.path.removeprefix(prefix + '.')}: {issue.message}"
+            if issue.path.startswith(prefix + ".") else f"--set: {issue.message}"
+            for issue in issues))
+    return converted[method]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,7 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     recording = read_recording(args.folder, zero_position_means_occluded=args.zeros_occluded)
-    result = track_recording(recording, args.method, **parse_options(args.options))
+    result = track_recording(recording, args.method,
+                             **parse_options(args.options, args.method))
     path = write_track_csv(result, args.out)
     counts = {status: int(np.sum(result.status == status)) for status in STATUSES}
     summary = ", ".join(f"{count} {status}" for status, count in counts.items())

@@ -77,6 +77,7 @@ from filterpy.kalman import KalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
 from kfusion.conventions import BRIDGED, LOST, QUATERNION_NORM_TOLERANCE, TRACKED
+from kfusion.guards import refuse_masked
 from kfusion.kalman import model
 from kfusion.kalman.orientation import (
     OrientationState,
@@ -201,6 +202,7 @@ class KalmanSnapshot:
 
 
 def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
+    refuse_masked(name, value)
     array = np.asarray(value, dtype=float)
     if array.shape != (size,):
         raise ValueError(f"{name}: expected shape ({size},), got {array.shape}")

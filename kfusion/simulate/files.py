@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from kfusion.conventions import TRUTH_COLUMNS
+from kfusion.guards import atomic_write
 from kfusion.recording import TRUTH_FILE, RecordingError, write_recording
 from kfusion.simulate.simulation import Simulation, Truth
 
@@ -25,7 +26,7 @@ def write_simulation(simulation: Simulation, folder: str | Path) -> Path:
                          columns=list(TRUTH_COLUMNS[:4]))
     frame[TRUTH_COLUMNS[4]] = truth.occluded.astype(int)
     # floats are written with repr(), so they read back exactly
-    frame.to_csv(folder / TRUTH_FILE, index=False)
+    atomic_write(folder / TRUTH_FILE, lambda temporary: frame.to_csv(temporary, index=False))
     return folder
 
 
