@@ -58,8 +58,11 @@ class _ShortRepr(reprlib.Repr):
     def repr_int(self, x: int, level: int) -> str:
         if x.bit_length() <= 64:
             return repr(x)
-        digits = int(x.bit_length() * math.log10(2)) + 1
-        return f"<an integer of about {digits} digits>"
+        # 2^(b-1) <= |x| < 2^b: the digit count is one of two values; one power of ten decides
+        digits = int((x.bit_length() - 1) * math.log10(2)) + 1
+        if abs(x) >= 10**digits:
+            digits += 1
+        return f"<an integer of {digits} digits>"
 
 
 _SHORT = _ShortRepr()
@@ -127,6 +130,7 @@ class _BoundedLoader(yaml.SafeLoader):
 
 def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False
                        ) -> dict[Any, Any]:
+    loader.flatten_mapping(node)  # type: ignore[no-untyped-call]  # resolve '<<' merge keys
     seen: set[Any] = set()
     for key_node, _ in node.value:
         key = loader.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]

@@ -1,0 +1,354 @@
+"""Bad input that used to escape: each case gets one line naming the file, row or key, exit 2 at
+the command line, and nothing overwritten (the guide's bad-input table, issue 9 item 8)."""
+
+from __future__ import annotations
+
+import errno
+import math
+import shutil
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from kfusion.baseline import BaselineParameters, BaselineTracker
+from kfusion.cli import main
+from kfusion.config import ConfigError, load_config, parse_config
+from kfusion.guards import (
+    MAX_YAML_NODES,
+    YamlError,
+    atomic_write,
+    load_yaml,
+    load_yaml_text,
+    real_number,
+    short_repr,
+)
+from kfusion.kalman import KalmanFusion, KalmanParameters
+from kfusion.recording import ImuSamples, MocapFrames, read_info
+from kfusion.simulate import OcclusionSpec, simulate, write_simulation
+from kfusion.tracker import Tracker
+
+# 434 bytes: nine levels of nine aliases, 9^9 ~ 387 million values once expanded
+ALIAS_BOMB = "\n".join(
+    ["a0: &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1]"]
+    + [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, 9)]
+) + "\n"
+HUGE_INTEGER = int("9" * 400)
+
+
+@pytest.fixture(scope="module")
+def source_folder(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("source") / "rec"
+    write_simulation(simulate("circle", seed=1, duration=6.0,
+                              occlusions=OcclusionSpec(gap_range=(0.15, 0.3), spacing=1.0)),
+                     folder)
+    return folder
+
+
+@pytest.fixture
+def folder(source_folder, tmp_path):
+    copy = tmp_path / "rec"
+    shutil.copytree(source_folder, copy)
+    return copy
+
+
+def edit_yaml(folder, old, new):
+    path = folder / "recording.yaml"
+    text = path.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new))
+
+
+def cli_error(capsys, argv):
+    status = main(argv)
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    return err
+
+
+# ------------------------------------------------------------------------------ YAML
+
+
+def test_alias_bomb_in_recording_yaml_is_refused_quickly(folder, capsys):
+    (folder / "recording.yaml").write_text(ALIAS_BOMB + "imu_to_body: *a8\n"
+                                           "gravity: [0, -9.81, 0]\n")
+    start = time.perf_counter()
+    err = cli_error(capsys, ["check", str(folder)])
+    elapsed = time.perf_counter() - start
+    assert f"recording.yaml: aliases expand to more than {MAX_YAML_NODES} values" in err
+    assert len(err) < 300
+    assert elapsed < 10  # a guard against expansion (it took 22 s and 1.6 GB), not a timing test
+
+
+def test_alias_bomb_in_a_config_and_a_tracker_file(tmp_path):
+    config = tmp_path / "bomb.yaml"
+    config.write_text(ALIAS_BOMB + "data: {kind: simulate, scenario: circle}\nseeds: *a8\n")
+    with pytest.raises(ConfigError, match=r"bomb\.yaml: aliases expand to more than"):
+        load_config(config)
+    with pytest.raises(ValueError, match=r"bomb\.yaml: aliases expand to more than"):
+        Tracker.from_yaml(config)
+
+
+def test_a_merge_key_bomb_is_measured_before_it_is_flattened():
+    text = "a0: &a0 {k: 1}\n" + "".join(
+        f"a{i}: &a{i} {{<<: [" + ", ".join([f"*a{i - 1}"] * 9) + f"], k{i}: 1}}\n"
+        for i in range(1, 9))
+    with pytest.raises(YamlError, match="aliases expand to more than"):
+        load_yaml_text(text, "merge.yaml")
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("a: &a [*a]\n", r"x\.yaml: an alias refers to a collection containing it"),
+    ("a: " + "[" * 100 + "]" * 100 + "\n", r"x\.yaml: nested deeper than 64 levels"),
+    ("a: 1\na: 2\n", r"x\.yaml: line 2, column 1: duplicate key 'a'"),
+    ("a: [1\n", r"x\.yaml: line 2, column 1: expected ',' or ']'"),
+])
+def test_yaml_loader_refusals(text, message):
+    with pytest.raises(YamlError, match=message):
+        load_yaml_text(text, "x.yaml")
+
+
+def test_plain_anchors_still_load():
+    assert load_yaml_text("a: &a [1, 2]\nb: *a\nc: {<<: {x: 1}, y: 2}\n", "x.yaml") == {
+        "a": [1, 2], "b": [1, 2], "c": {"x": 1, "y": 2}}
+
+
+def test_non_utf8_recording_yaml_names_the_file(folder, capsys):
+    with open(folder / "recording.yaml", "ab") as handle:
+        handle.write(b"name: caf\xe9\n")
+    err = cli_error(capsys, ["check", str(folder)])
+    assert "recording.yaml: not UTF-8 text (byte 0xe9 on line" in err
+    with pytest.raises(ValueError, match=r"recording\.yaml: not UTF-8 text"):
+        read_info(folder / "recording.yaml")
+
+
+def test_oversized_yaml_is_refused(tmp_path):
+    path = tmp_path / "big.yaml"
+    path.write_text("# " + "x" * 1_100_000 + "\n")
+    with pytest.raises(YamlError, match=r"big\.yaml: file is 1100003 bytes; expected a YAML "
+                       r"file of at most 1000000 bytes"):
+        load_yaml(path)
+
+
+def test_a_400_digit_gravity_is_one_short_line(folder, capsys):
+    edit_yaml(folder, "- -9.81", f"- {HUGE_INTEGER}")
+    err = cli_error(capsys, ["check", str(folder)])
+    assert "recording.yaml, key 'gravity': expected a list of 3 finite numbers, got " in err
+    assert "<an integer of 400 digits>" in err and len(err) < 200
+
+
+def test_tracker_file_with_huge_and_unhashable_values(tmp_path):
+    path = tmp_path / "tracker.yaml"
+    path.write_text(f"imu_to_body: [1, 0, 0, 0]\ngravity: [0, 0, -9.81]\n"
+                    f"tracker: {{fix_timeout_s: {HUGE_INTEGER}}}\n")
+    with pytest.raises(ValueError, match=r"TrackerOptions\.fix_timeout_s: expected a finite "
+                       r"number > 0, got <an integer of 400 digits>"):
+        Tracker.from_yaml(path)
+    path.write_text("imu_to_body: [1, 0, 0, 0]\ngravity: [0, 0, -9.81]\nmethod: [kalman]\n")
+    with pytest.raises(ValueError, match=r"method: expected one of \['kalman', 'baseline'\], "
+                       r"got \['kalman'\]"):
+        Tracker.from_yaml(path)
+    path.write_text("imu_to_body: [1, 0, 0, 0]\ngravity: [0, 0, -9.81]\nimu: 5\n")
+    with pytest.raises(ValueError, match=r"imu: unknown IMU profile 5"):
+        Tracker.from_yaml(path)
+
+
+def test_short_repr_never_prints_a_whole_value():
+    assert short_repr("abc") == "'abc'"
+    assert short_repr(HUGE_INTEGER) == "<an integer of 400 digits>"
+    nested = [[list(range(1000))] * 1000] * 1000
+    assert len(short_repr(nested)) <= 60
+    assert short_repr("x" * 500, limit=20) == "'xxxxxxxxxxxxxxxx..."
+    assert real_number(HUGE_INTEGER) == math.inf and real_number(-HUGE_INTEGER) == -math.inf
+    assert real_number(True) is None and real_number("1") is None and real_number(2) == 2.0
+
+
+# ------------------------------------------------------------------------------ writing
+
+
+def test_track_out_naming_a_folder(folder, tmp_path, capsys):
+    err = cli_error(capsys, ["track", str(folder), "--out", str(tmp_path)])
+    assert f"{tmp_path}: is a folder; expected the path of a file to write" in err
+
+
+def _half_then_fail(number):
+    original = pd.DataFrame.to_csv
+
+    def failing(self, path=None, *args, **kwargs):
+        text = original(self, None, *args, **kwargs)
+        with open(path, "w") as handle:
+            handle.write(text[: len(text) // 2])
+        raise OSError(number, {errno.ENOSPC: "No space left on device",
+                               errno.EIO: "Input/output error"}[number])
+
+    return failing
+
+
+@pytest.mark.parametrize("method", ["kalman", "baseline"])
+def test_a_failed_track_write_keeps_the_previous_file(folder, tmp_path, capsys, monkeypatch,
+                                                      method):
+    out = tmp_path / "track.csv"
+    assert main(["track", str(folder), "--method", method, "--out", str(out)]) == 0
+    before = out.read_bytes()
+    monkeypatch.setattr(pd.DataFrame, "to_csv", _half_then_fail(errno.ENOSPC))
+    err = cli_error(capsys, ["track", str(folder), "--method", method, "--out", str(out),
+                             "--set", "max_bridge_s=0.2"])
+    assert f"{out}: cannot write (No space left on device); any previous file is unchanged" \
+        in err
+    assert out.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec", "track.csv"]  # no temp left
+
+
+def test_atomic_write_keeps_the_old_file_on_any_failure(tmp_path):
+    path = tmp_path / "out.txt"
+    path.write_text("old")
+
+    def crash(temporary):
+        temporary.write_text("half")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write(path, crash)
+    assert path.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+    atomic_write(path, lambda temporary: temporary.write_text("new"))
+    assert path.read_text() == "new"
+
+
+def test_calibrate_out_is_written_atomically(folder, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "calibrated.yaml"
+    out.write_text("previous\n")
+    monkeypatch.setattr("pathlib.Path.write_text", lambda self, text, **kw: (_ for _ in ()).throw(
+        OSError(errno.EIO, "Input/output error")))
+    err = cli_error(capsys, ["calibrate", str(folder), "--out", str(out), "--force",
+                             "--angular-rate"])
+    assert "cannot write (Input/output error)" in err
+    assert out.read_bytes() == b"previous\n"
+
+
+def test_a_failed_sweep_table_write_keeps_the_previous_table(tmp_path, monkeypatch):
+    from kfusion.sweep import SweepStore
+
+    store = SweepStore(tmp_path)
+    row = {"run_id": "abc", "seed": 0, "rms_mm": 1.0}
+    path = store.write(row)
+    before = path.read_bytes()
+    monkeypatch.setattr(pd.DataFrame, "to_parquet", lambda self, target, **kw: (
+        open(target, "wb").write(b"PAR"), (_ for _ in ()).throw(OSError(errno.ENOSPC, "full"))))
+    with pytest.raises(OSError, match="cannot write"):
+        store.write({**row, "rms_mm": 2.0})
+    assert path.read_bytes() == before
+
+
+# ------------------------------------------------------------------------------ --set
+
+
+@pytest.mark.parametrize(("value", "message"), [
+    ("max_bridge_s=[1", r"--set max_bridge_s: expected a number, true/false or null, got '\[1' "
+     r"\(line 1, column 3: expected ',' or '\]'"),
+    (f"max_bridge_s={HUGE_INTEGER}", r"--set max_bridge_s: Input should be a valid number, got "
+     r"<an integer of 400 digits>"),
+    ("max_bridge_s=&a [*a]", r"--set max_bridge_s: .*recursive alias"),
+    ("max_bridge_s=1e300", r"max_bridge_s: expected at most 60 s, got 1e\+300"),
+    ("accelerometer_noise_density=0", r"accelerometer_noise_density: expected a number > 0"),
+    ("gate_probability=two", r"--set gate_probability: .*got 'two'"),
+    ("=3", r"--set: expected KEY=VALUE, got '=3'"),
+])
+def test_malformed_set_values(folder, tmp_path, capsys, value, message):
+    import re
+
+    err = cli_error(capsys, ["track", str(folder), "--out", str(tmp_path / "t.csv"),
+                             "--set", value])
+    assert re.search(message, err), err
+    assert not (tmp_path / "t.csv").exists()
+
+
+def test_set_values_are_converted_like_config_values(folder, tmp_path, capsys):
+    out = tmp_path / "t.csv"
+    assert main(["track", str(folder), "--out", str(out), "--set", "max_bridge_s=1e-1"]) == 0
+    assert "lost" in set(pd.read_csv(out)["status"])  # 0.1 s is shorter than the gaps
+
+
+# ------------------------------------------------------------------------------ check = track
+
+
+@pytest.mark.parametrize("name", ["bogus_imu", "mpu6050"])
+@pytest.mark.parametrize("command", ["check", "track"])
+def test_check_and_track_refuse_an_unknown_imu_profile_alike(folder, tmp_path, capsys, name,
+                                                             command):
+    edit_yaml(folder, "imu: mpu9255", f"imu: {name}")
+    extra = ["--out", str(tmp_path / "t.csv"), "--method", "baseline"] if command == "track" \
+        else []
+    err = cli_error(capsys, [command, str(folder), *extra])
+    assert (f"recording.yaml, key 'imu': unknown IMU profile '{name}'; expected one of "
+            "['broad', 'mpu9255', 'um7']") in err
+
+
+def test_a_known_profile_in_any_case_passes(folder, capsys):
+    edit_yaml(folder, "imu: mpu9255", "imu: UM7")
+    assert main(["check", str(folder)]) == 0
+
+
+# ------------------------------------------------------------------------------ configs
+
+
+@pytest.mark.parametrize("name", ["../../x", "/tmp/x", "..", "a/b", "a\\b", "C:x", " x"])
+def test_a_config_name_cannot_leave_the_output_folder(name):
+    with pytest.raises(ConfigError, match=r"<config>: name: expected a plain name"):
+        parse_config({"name": name, "data": {"kind": "simulate", "scenario": "circle"}})
+
+
+def test_a_plain_config_name_is_kept():
+    config = parse_config({"name": "arm lift 2", "data": {"kind": "simulate",
+                                                          "scenario": "circle"}})
+    assert str(config.output_directory()) == "kfusion-output/arm lift 2"
+
+
+# ------------------------------------------------------------------------------ arrays, parameters
+
+
+def test_masked_arrays_are_refused_everywhere():
+    masked = np.ma.array([0.0, 0.0, 9.81], mask=[False, True, False])
+    gyro = np.zeros(3)
+    pattern = r"expected a plain array or sequence \(NaN marks a missing value\), got a masked " \
+        r"array \(numpy\.ma\)"
+    tracker = Tracker([1, 0, 0, 0], [0, 0, -9.81])
+    with pytest.raises(ValueError, match="push_imu: acc: " + pattern):
+        tracker.push_imu(0.0, masked, gyro)
+    with pytest.raises(ValueError, match="push_mocap: position: " + pattern):
+        tracker.push_mocap(0.0, np.ma.array([0.1, 0.2, 0.3], mask=True), [1, 0, 0, 0])
+    fusion = KalmanFusion([1, 0, 0, 0], [0, 0, -9.81], KalmanParameters.from_profiles())
+    with pytest.raises(ValueError, match="accelerometer: " + pattern):
+        fusion.predict(0.0, masked, gyro)
+    with pytest.raises(ValueError, match="gyroscope: " + pattern):
+        BaselineTracker([1, 0, 0, 0]).push_imu(0.0, [0, 0, 9.81], np.ma.array(gyro))
+    with pytest.raises(ValueError, match="ImuSamples.t: " + pattern):
+        ImuSamples(np.ma.array([0.0, 0.01]), np.zeros((2, 3)), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="MocapFrames.position: " + pattern):
+        MocapFrames(np.zeros(1), np.ma.zeros((1, 3)), np.zeros((1, 4)))
+
+
+@pytest.mark.parametrize("name", ["accelerometer_noise_density", "gyroscope_noise_density",
+                                  "accelerometer_bias_random_walk",
+                                  "gyroscope_bias_random_walk"])
+def test_zero_noise_densities_are_refused(name):
+    with pytest.raises(ValueError, match=rf"KalmanParameters\.{name}: expected a number > 0, "
+                       r"got 0"):
+        KalmanParameters.from_profiles(**{name: 0})
+
+
+def test_absurd_bridging_times_are_refused():
+    with pytest.raises(ValueError, match=r"KalmanParameters\.max_bridge_s: expected at most "
+                       r"60 s, got 1e\+300"):
+        KalmanParameters.from_profiles(max_bridge_s=1e300)
+    with pytest.raises(ValueError, match=r"BaselineParameters\.max_bridge_s: expected a "
+                       r"positive number of seconds, at most 60, got 1e\+300"):
+        BaselineParameters(max_bridge_s=1e300)
+    with pytest.raises(ValueError, match=r"KalmanParameters\.max_bridge_s: expected a finite "
+                       r"number, got <an integer of 400 digits>"):
+        KalmanParameters.from_profiles(max_bridge_s=HUGE_INTEGER)
+    with pytest.raises(ValueError, match=r"BaselineParameters\.buffer_size: expected an "
+                       r"integer <= 10000, got <an integer of 400 digits>"):
+        BaselineParameters(buffer_size=HUGE_INTEGER)
+    assert KalmanParameters.from_profiles(max_bridge_s=60).max_bridge_s == 60.0
