@@ -1,0 +1,418 @@
+"""Fail-safe benchmark (issue 9, "Show"): one row per broken assumption, per path.
+
+For every fault (built by :mod:`kfusion.simulate.faults` on simulated recordings with truth, and
+on the real BROAD trials when ``../shared`` holds them) each path is run the way a user would:
+
+* ``tracker``: the streaming :class:`kfusion.tracker.Tracker` (Kalman), samples pushed in
+  arrival order, ``estimate(t)`` asked after each mocap frame at its arrival time (when the
+  tracker refuses a ``t`` behind its newest sample, ``estimate()`` is asked instead, and counted);
+* ``kalman`` and ``smoother``: ``kfusion check`` then ``kfusion track`` on the recording folder
+  written to disk; a refusal by ``kfusion track`` (exit 2) counts as the tool refusing, never as
+  confidently wrong.
+
+Columns: samples scored (rows with truth), ``wrong`` = fraction of scored samples confidently
+wrong (status not lost and |error| > bound(0.99)), ``worst`` = largest |error| / bound(0.99) over
+rows not lost, the status mix, and what kfusion did (refusals with their message, fallbacks,
+health counters). The batch bound is :func:`kfusion.tracker.position_bound` of the diagonal
+covariance from the CSV's std columns. Target once the fail-safe issue lands: wrong <= 1 % and
+worst <= 3 in every row.
+
+Run: ``python benchmarks/failsafe.py --quick`` (< 2 minutes) or ``python benchmarks/failsafe.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import math
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from kfusion.cli import main as cli
+from kfusion.conventions import LOST
+from kfusion.recording import write_recording
+from kfusion.simulate import OcclusionSpec, faults, simulate
+from kfusion.simulate.faults import Streams
+from kfusion.tracker import DEFAULT_CONFIDENCE, Tracker, position_bound
+
+CONFIDENCE = DEFAULT_CONFIDENCE
+TARGET_WRONG = 0.01
+TARGET_WORST = 3.0
+BATCH_METHODS = ("kalman", "smoother")
+SCENARIO = "random_reach"
+REFUSED = "refused"
+
+
+# ------------------------------------------------------------------------------ scoring
+
+
+@dataclass
+class Outcome:
+    """One path's result on one recording: per scored row status, error and bound, or a
+    refusal; ``notes`` counts what kfusion did."""
+
+    status: list[str] = field(default_factory=list)
+    error: list[float] = field(default_factory=list)
+    bound: list[float] = field(default_factory=list)
+    notes: Counter = field(default_factory=Counter)
+    refusal: str | None = None
+
+    def add(self, status: str, position: np.ndarray, bound: float, truth: np.ndarray) -> None:
+        if not np.isfinite(truth).all():
+            return
+        self.status.append(status)
+        self.error.append(float(np.linalg.norm(position - truth)) if status != LOST else math.nan)
+        self.bound.append(bound)
+
+
+def merge(outcomes: list[Outcome]) -> Outcome:
+    total = Outcome()
+    for outcome in outcomes:
+        total.status += outcome.status
+        total.error += outcome.error
+        total.bound += outcome.bound
+        total.notes += outcome.notes
+        if outcome.refusal is not None:
+            total.notes[f"{REFUSED}: {outcome.refusal}"] += 1
+    return total
+
+
+def summarise(name: str, path: str, outcome: Outcome) -> dict[str, object]:
+    status = np.array(outcome.status, dtype=object)
+    error = np.array(outcome.error, dtype=float)
+    bound = np.array(outcome.bound, dtype=float)
+    live = status != LOST
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(live, error / bound, 0.0)
+    wrong = live & (error > bound)
+    refusals = sum(count for note, count in outcome.notes.items() if note.startswith(REFUSED))
+    mix = Counter(status.tolist())
+    samples = len(status)
+    statuses = ", ".join(f"{key[0]} {100 * mix[key] / samples:.0f}%"
+                         for key in ("tracked", "bridged", "lost") if mix[key]) if samples else ""
+    did = "; ".join(f"{note} x{count}" if count > 1 else note
+                    for note, count in outcome.notes.most_common(4))
+    return {"assumption broken": name, "path": path, "samples": samples,
+            "wrong": float(wrong.mean()) if samples else 0.0,
+            "worst": float(np.nanmax(ratio)) if samples and live.any() else 0.0,
+            "statuses": statuses or (REFUSED if refusals else "-"), "what kfusion did": did}
+
+
+def health_notes(tracker: Tracker) -> Counter:
+    """Non-zero health counters (whatever fields the tracker's Health has)."""
+    notes: Counter = Counter()
+    skip = ("pushed", "accepted", "fused", "time_", "longest", "occluded")
+    for key, value in tracker.health.as_dict().items():
+        if any(part in key for part in skip):
+            continue
+        if isinstance(value, dict):
+            for reason, count in value.items():
+                if count:
+                    notes[f"{key}.{reason}={count}"] += 1
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and value:
+            notes[f"{key}={value:g}"] += 1
+        elif isinstance(value, str) and value:
+            notes[f"{key}={value}"] += 1
+    return notes
+
+
+# ------------------------------------------------------------------------------ paths
+
+
+def new_tracker(streams: Streams) -> Tracker:
+    return Tracker.from_recording_info(streams.recording.info)
+
+
+def _push(tracker: Tracker, streams: Streams, stream: int, index: int) -> None:
+    recording = streams.recording
+    if stream == 0:
+        imu = recording.imu
+        tracker.push_imu(imu.t[index], imu.accelerometer[index], imu.gyroscope[index])
+    else:
+        mocap = recording.mocap
+        tracker.push_mocap(mocap.t[index], mocap.position[index], mocap.quaternion[index])
+
+
+def _estimate(tracker: Tracker, t: float, notes: Counter):  # type: ignore[no-untyped-def]
+    try:
+        return tracker.estimate(t)
+    except ValueError:
+        notes["estimate(t) refused a t behind the newest sample; estimate() used"] += 1
+        return tracker.estimate()
+
+
+def run_tracker(streams: Streams, truth: np.ndarray) -> Outcome:
+    """Push in arrival order; score ``estimate(arrival)`` after each mocap frame."""
+    outcome = Outcome()
+    try:
+        tracker = new_tracker(streams)
+    except ValueError as error:
+        outcome.refusal = f"Tracker: {str(error)[:120]}"
+        return outcome
+    for arrival, stream, index in streams.events():
+        try:
+            _push(tracker, streams, stream, index)
+        except (ValueError, OverflowError) as error:
+            outcome.notes[f"push raised {type(error).__name__}"] += 1
+            continue
+        if stream == 1:
+            estimate = _estimate(tracker, arrival, outcome.notes)
+            outcome.add(estimate.status, estimate.position, estimate.bound(CONFIDENCE),
+                        truth[index])
+    outcome.notes += health_notes(tracker)
+    return outcome
+
+
+def run_tracker_without_t(streams: Streams, truth: np.ndarray, stop_fraction: float = 0.5
+                          ) -> Outcome:
+    """Both streams stop at ``stop_fraction``; afterwards the caller polls ``estimate()``
+    without ``t`` at every later mocap time and the limb keeps moving."""
+    outcome = Outcome()
+    tracker = new_tracker(streams)
+    mocap_t = streams.recording.mocap.t
+    stop = float(mocap_t[0] + stop_fraction * (mocap_t[-1] - mocap_t[0]))
+    for arrival, stream, index in streams.events():
+        if arrival >= stop:
+            break
+        _push(tracker, streams, stream, index)
+    for index in np.flatnonzero(streams.mocap_arrival >= stop):
+        try:
+            estimate = tracker.estimate()
+        except (TypeError, ValueError) as error:
+            outcome.refusal = f"estimate(): {str(error)[:100]}"
+            return outcome
+        outcome.add(estimate.status, estimate.position, estimate.bound(CONFIDENCE),
+                    truth[index])
+    outcome.notes += health_notes(tracker)
+    return outcome
+
+
+def run_tracker_threads(streams: Streams, dense_t: np.ndarray, dense_position: np.ndarray
+                        ) -> Outcome:
+    """One thread pushes as fast as it can; another calls ``estimate(t)`` at the newest pushed
+    arrival time meanwhile. Each reader estimate is scored against the truth at its t."""
+    outcome = Outcome()
+    tracker = new_tracker(streams)
+    newest = [-math.inf]
+    done = threading.Event()
+    readings: list = []
+
+    def pusher() -> None:
+        try:
+            for arrival, stream, index in streams.events():
+                _push(tracker, streams, stream, index)
+                newest[0] = arrival
+        finally:
+            done.set()
+
+    def reader() -> None:
+        while not done.is_set():
+            t = newest[0]
+            if not math.isfinite(t):
+                continue
+            try:
+                readings.append(tracker.estimate(t))
+            except ValueError:
+                outcome.notes["estimate(t) raced past by the pusher (ValueError)"] += 1
+            except Exception as error:  # a corrupted state may fail in any way: report it
+                outcome.notes[f"estimate(t) raised {type(error).__name__}"] += 1
+
+    threads = [threading.Thread(target=pusher), threading.Thread(target=reader)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    truth = np.column_stack([np.interp([r.t for r in readings], dense_t, dense_position[:, k])
+                             for k in range(3)]) if readings else np.zeros((0, 3))
+    for reading, true_position in zip(readings, truth, strict=True):
+        outcome.add(reading.status, reading.position, reading.bound(CONFIDENCE), true_position)
+    outcome.notes += health_notes(tracker)
+    return outcome
+
+
+def run_batch(streams: Streams, truth: np.ndarray, method: str, folder: Path) -> Outcome:
+    """``kfusion check`` and ``kfusion track`` on the recording written to ``folder``."""
+    outcome = Outcome()
+    write_recording(streams.recording, folder)
+    check_status, check_message = _cli(["check", str(folder)])
+    outcome.notes["check: ok" if check_status == 0 else f"check refused: {check_message}"] += 1
+    out = folder / f"track_{method}.csv"
+    status, message = _cli(["track", str(folder), "--method", method, "--out", str(out)])
+    if status != 0:
+        outcome.refusal = f"track: {message}"
+        return outcome
+    table = pd.read_csv(out)
+    std = table[["std_x", "std_y", "std_z"]].to_numpy(dtype=float)
+    position = table[["x", "y", "z"]].to_numpy(dtype=float)
+    for row, status_text in enumerate(table["status"].astype(str)):
+        bound = math.inf if status_text == LOST else position_bound(np.diag(std[row] ** 2),
+                                                                    CONFIDENCE)
+        outcome.add(status_text, position[row], bound, truth[row])
+    return outcome
+
+
+def _cli(argv: list[str]) -> tuple[int, str]:
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        status = cli(argv)
+    message = err.getvalue().strip().splitlines()
+    text = message[-1] if message else ""
+    return status, text.split("error: ", 1)[-1][:90]
+
+
+# ------------------------------------------------------------------------------ data
+
+
+@dataclass(frozen=True)
+class Case:
+    """A recording with truth at its mocap rows (NaN where unknown), dense truth if any."""
+
+    name: str
+    streams: Streams
+    truth: np.ndarray
+    dense_t: np.ndarray | None = None
+    dense_position: np.ndarray | None = None
+
+
+def simulated_cases(seeds: int, duration: float, gap_range: tuple[float, float]) -> list[Case]:
+    cases = []
+    for seed in range(seeds):
+        simulation = simulate(SCENARIO, seed=seed, imu="mpu9255", duration=duration,
+                              occlusions=OcclusionSpec(gap_range=gap_range, spacing=1.5))
+        truth = simulation.truth
+        cases.append(Case(f"{SCENARIO}/{seed}", Streams.of(simulation.recording),
+                          np.asarray(truth.position), truth.imu_t, truth.imu_position))
+    return cases
+
+
+def broad_cases(quick: bool) -> list[Case]:
+    """BROAD trials with held-out-style gaps (0.1-0.3 s cut where the mocap is valid); [] when
+    ``../shared`` is absent."""
+    try:
+        from kfusion.datasets import broad_trials
+
+        paths = broad_trials()
+    except (ValueError, FileNotFoundError):
+        return []
+    from kfusion.config import first_seconds
+    from kfusion.evaluate import cut_gaps
+    from kfusion.readers.broad import read_broad
+
+    cases = []
+    for path in paths[:1] if quick else paths:
+        recording = read_broad(path, mocap_step=3)
+        if quick:
+            recording = first_seconds(recording, 30.0)
+        gapped = cut_gaps(recording, rng=np.random.default_rng(0), gap_range=(0.1, 0.3))
+        truth = np.array(gapped.truth_position)
+        visible = gapped.recording.mocap.visible
+        truth[visible] = gapped.recording.mocap.position[visible]
+        cases.append(Case(path.stem, Streams.of(gapped.recording), truth))
+    return cases
+
+
+Fault = Callable[[Streams], Streams]
+FAULTS: list[tuple[str, Fault, str]] = [
+    ("none (nominal)", lambda s: s, "sim"),
+    ("IMU delivers nothing", faults.imu_silent, "sim"),
+    ("IMU stops while mocap goes on", faults.imu_stops, "sim"),
+    ("IMU misses 0.3 s inside an occlusion", faults.imu_misses_inside_gaps, "long"),
+    ("one mocap frame stamped 1000 s ahead", faults.mocap_future_stamp, "sim"),
+    ("orientation flips 180 deg before a gap", faults.orientation_flip_before_gaps, "sim"),
+    ("marker swap lasting 1 s", faults.marker_swap, "sim"),
+    ("IMU clock 137 ms behind", lambda s: faults.imu_clock_offset(s, -0.137), "sim"),
+    ("IMU clock 100 ms ahead", lambda s: faults.imu_clock_offset(s, 0.100), "sim"),
+    ("gravity sign flipped", faults.gravity_sign_flipped, "sim"),
+    ("mount given as identity", faults.mount_identity, "sim"),
+    ("quaternion columns x,y,z,w", faults.quaternion_columns_xyzw, "sim"),
+    ("IMU time in ms", faults.imu_time_in_milliseconds, "sim"),
+]
+BROAD_FAULTS: list[tuple[str, Fault]] = [
+    ("real fast motion (BROAD, held-out gaps)", lambda s: s),
+    ("BROAD + IMU clock 137 ms behind", lambda s: faults.imu_clock_offset(s, -0.137)),
+    ("BROAD + gravity sign flipped", faults.gravity_sign_flipped),
+]
+
+
+def evaluate(name: str, cases: list[Case], fault: Fault, workdir: Path,
+             rows: list[dict[str, object]], batch: bool = True) -> None:
+    faulted = [(case, fault(case.streams)) for case in cases]
+    rows.append(summarise(name, "tracker", merge([run_tracker(streams, case.truth)
+                                                  for case, streams in faulted])))
+    if not batch:
+        return
+    for method in BATCH_METHODS:
+        outcomes = []
+        for number, (case, streams) in enumerate(faulted):
+            folder = workdir / f"{len(rows)}_{method}_{number}"
+            outcomes.append(run_batch(streams, case.truth, method, folder))
+        rows.append(summarise(name, method, merge(outcomes)))
+
+
+def markdown(table: pd.DataFrame) -> str:
+    """A markdown table of ``table``'s cells as text."""
+    lines = ["| " + " | ".join(map(str, table.columns)) + " |",
+             "|" + "---|" * len(table.columns)]
+    lines += ["| " + " | ".join(str(value).replace("|", "/") for value in row) + " |"
+              for row in table.itertuples(index=False)]
+    return "\n".join(lines)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true",
+                        help="1 seed of 20 s, BROAD: first 30 s of one trial (< 2 minutes)")
+    parser.add_argument("--seeds", type=int, default=3, help="simulation seeds (full mode)")
+    args = parser.parse_args()
+    seeds, duration = (1, 20.0) if args.quick else (args.seeds, 40.0)
+    start = time.perf_counter()
+    cases = simulated_cases(seeds, duration, (0.1, 0.5))
+    long_gaps = simulated_cases(seeds, duration, (0.4, 0.6))
+    rows: list[dict[str, object]] = []
+    with tempfile.TemporaryDirectory(prefix="kfusion-failsafe-") as directory:
+        workdir = Path(directory)
+        for name, fault, data in FAULTS:
+            evaluate(name, long_gaps if data == "long" else cases, fault, workdir, rows)
+            print(f"  {name}: {time.perf_counter() - start:.0f} s", file=sys.stderr)
+        rows.append(summarise("estimate() without t after both streams stop", "tracker",
+                              merge([run_tracker_without_t(case.streams, case.truth)
+                                     for case in cases])))
+        rows.append(summarise("estimate(t) from another thread while pushing", "tracker",
+                              merge([run_tracker_threads(case.streams, case.dense_t,
+                                                         case.dense_position)
+                                     for case in cases if case.dense_t is not None])))
+        broad = broad_cases(args.quick)
+        if broad:
+            for name, fault in BROAD_FAULTS[:1] if args.quick else BROAD_FAULTS:
+                evaluate(name, broad, fault, workdir, rows)
+                print(f"  {name}: {time.perf_counter() - start:.0f} s", file=sys.stderr)
+        else:
+            print("BROAD rows skipped: ../shared/data/broad not found", file=sys.stderr)
+    table = pd.DataFrame(rows)
+    table["meets target"] = (table["wrong"] <= TARGET_WRONG) & (table["worst"] <= TARGET_WORST)
+    shown = table.copy()
+    shown["wrong"] = [f"{100 * value:.1f} %" for value in table["wrong"]]
+    shown["worst"] = [f"{value:.3g}" for value in table["worst"]]
+    shown["meets target"] = np.where(table["meets target"], "yes", "NO")
+    mode = "quick" if args.quick else f"full, {seeds} seeds"
+    print(f"\nFail-safe benchmark ({mode}; simulated {SCENARIO} {duration:g} s, mpu9255; "
+          f"bound at {CONFIDENCE:g}); wrong = status not lost and error > bound\n")
+    print(markdown(shown))
+    print(f"\n{int(table['meets target'].sum())} of {len(table)} rows meet the target "
+          f"(wrong <= {100 * TARGET_WRONG:g} %, worst <= {TARGET_WORST:g}); "
+          f"{time.perf_counter() - start:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

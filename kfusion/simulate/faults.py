@@ -1,0 +1,188 @@
+"""Fault injection: recordings that break one of kfusion's assumptions, for fail-safe tests and
+``benchmarks/failsafe.py``.
+
+Each function takes :class:`Streams` (a recording plus the time each sample *arrives*, on the
+mocap clock) and returns new :class:`Streams`; the input is never modified. Stamps are what the
+sensors write; arrival times are when a live system would receive each sample, so a stream can
+carry a wrong stamp (a clock offset, milliseconds, a glitch far in the future) while still being
+delivered in real time. Ground truth stays that of the original recording: faults never add,
+remove or reorder mocap rows, so truth rows line up with the output rows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kfusion.conventions import quaternion_multiply
+from kfusion.recording import ImuSamples, MocapFrames, Recording, occlusion_runs
+
+HALF_TURN_ABOUT_X = np.array([0.0, 1.0, 0.0, 0.0])
+"""[w, x, y, z] of a 180 degree rotation about the body x axis."""
+
+
+@dataclass(frozen=True)
+class Streams:
+    """A recording as a live system receives it.
+
+    Attributes:
+        recording: samples with the stamps the sensors wrote.
+        imu_arrival: (n,) s on the mocap clock, when each IMU sample arrives.
+        mocap_arrival: (m,) s, when each mocap frame arrives.
+    """
+
+    recording: Recording
+    imu_arrival: NDArray[np.float64]
+    mocap_arrival: NDArray[np.float64]
+
+    @classmethod
+    def of(cls, recording: Recording) -> Streams:
+        """Streams that arrive exactly at their stamps (no fault)."""
+        return cls(recording, np.array(recording.imu.t, dtype=float),
+                   np.array(recording.mocap.t, dtype=float))
+
+    def events(self) -> list[tuple[float, int, int]]:
+        """``(arrival, stream, index)`` in arrival order; stream 0 = IMU, 1 = mocap (the IMU
+        first at equal arrival times)."""
+        events = [(float(t), 0, i) for i, t in enumerate(self.imu_arrival)]
+        events += [(float(t), 1, i) for i, t in enumerate(self.mocap_arrival)]
+        return sorted(events)
+
+
+def _imu(streams: Streams, keep: NDArray[np.bool_] | None = None,
+         t: NDArray[np.float64] | None = None) -> Streams:
+    imu = streams.recording.imu
+    keep = np.ones(len(imu), dtype=bool) if keep is None else keep
+    stamps = imu.t if t is None else t
+    samples = ImuSamples(stamps[keep], imu.accelerometer[keep], imu.gyroscope[keep])
+    return Streams(dataclasses.replace(streams.recording, imu=samples),
+                   streams.imu_arrival[keep], streams.mocap_arrival)
+
+
+def _mocap(streams: Streams, *, t: NDArray | None = None, position: NDArray | None = None,
+           quaternion: NDArray | None = None) -> Streams:
+    mocap = streams.recording.mocap
+    frames = MocapFrames(mocap.t if t is None else t,
+                         mocap.position if position is None else position,
+                         mocap.quaternion if quaternion is None else quaternion)
+    return Streams(streams.recording.with_mocap(frames), streams.imu_arrival,
+                   streams.mocap_arrival)
+
+
+def _info(streams: Streams, **changes: object) -> Streams:
+    recording = streams.recording
+    info = dataclasses.replace(recording.info, **changes)  # type: ignore[arg-type]
+    return Streams(dataclasses.replace(recording, info=info), streams.imu_arrival,
+                   streams.mocap_arrival)
+
+
+def _fraction_time(streams: Streams, fraction: float) -> float:
+    t = streams.recording.mocap.t
+    return float(t[0] + fraction * (t[-1] - t[0]))
+
+
+# ------------------------------------------------------------------------------ IMU stream
+
+
+def imu_silent(streams: Streams) -> Streams:
+    """The IMU delivers nothing."""
+    return _imu(streams, np.zeros(len(streams.recording.imu), dtype=bool))
+
+
+def imu_stops(streams: Streams, fraction: float = 0.4) -> Streams:
+    """The IMU stops ``fraction`` of the way through the recording; the mocap goes on."""
+    return _imu(streams, streams.imu_arrival < _fraction_time(streams, fraction))
+
+
+def imu_misses_inside_gaps(streams: Streams, duration: float = 0.3) -> Streams:
+    """The IMU misses ``duration`` s (centred) inside every mocap occlusion (all of a shorter
+    occlusion)."""
+    mocap_t = streams.recording.mocap.t
+    drop = np.zeros(len(streams.recording.imu), dtype=bool)
+    for start, stop in occlusion_runs(streams.recording.mocap.visible):
+        first = mocap_t[start - 1] if start > 0 else mocap_t[0]
+        last = mocap_t[stop] if stop < len(mocap_t) else mocap_t[-1]
+        middle = 0.5 * (first + last)
+        low, high = max(first, middle - duration / 2), min(last, middle + duration / 2)
+        drop |= (streams.imu_arrival > low) & (streams.imu_arrival < high)
+    return _imu(streams, ~drop)
+
+
+def imu_clock_offset(streams: Streams, offset_s: float) -> Streams:
+    """IMU stamps ``offset_s`` s off the mocap clock (``stamp = true time + offset_s``; negative:
+    the IMU clock is behind); samples still arrive in real time."""
+    return _imu(streams, t=streams.recording.imu.t + offset_s)
+
+
+def imu_time_in_milliseconds(streams: Streams) -> Streams:
+    """IMU stamps written in ms instead of s."""
+    return _imu(streams, t=streams.recording.imu.t * 1000.0)
+
+
+# ------------------------------------------------------------------------------ mocap stream
+
+
+def mocap_future_stamp(streams: Streams, fraction: float = 0.4, ahead_s: float = 1000.0
+                       ) -> Streams:
+    """One visible mocap frame, ``fraction`` of the way through, stamped ``ahead_s`` s ahead
+    (it still arrives on time)."""
+    mocap = streams.recording.mocap
+    index = _visible_index_after(mocap, _fraction_time(streams, fraction))
+    t = np.array(mocap.t)
+    t[index] += ahead_s
+    return _mocap(streams, t=t)
+
+
+def orientation_flip_before_gaps(streams: Streams) -> Streams:
+    """The last visible frame before each occlusion reports its orientation turned 180 degrees
+    about the body x axis."""
+    mocap = streams.recording.mocap
+    quaternion = np.array(mocap.quaternion)
+    for start, _ in occlusion_runs(mocap.visible):
+        if start > 0:
+            quaternion[start - 1] = quaternion_multiply(quaternion[start - 1], HALF_TURN_ABOUT_X)
+    return _mocap(streams, quaternion=quaternion)
+
+
+def marker_swap(streams: Streams, fraction: float = 0.5, duration_s: float = 1.0,
+                offset: tuple[float, float, float] = (0.2, 0.0, 0.0)) -> Streams:
+    """For ``duration_s`` s from ``fraction`` of the way through, the rigid body is solved on
+    swapped markers: every visible frame is displaced by ``offset`` (m, global) and turned 180
+    degrees about the body x axis."""
+    mocap = streams.recording.mocap
+    start = _fraction_time(streams, fraction)
+    inside = (mocap.t >= start) & (mocap.t < start + duration_s) & mocap.visible
+    position = np.array(mocap.position)
+    quaternion = np.array(mocap.quaternion)
+    position[inside] += np.asarray(offset)
+    quaternion[inside] = quaternion_multiply(quaternion[inside], HALF_TURN_ABOUT_X)
+    return _mocap(streams, position=position, quaternion=quaternion)
+
+
+def quaternion_columns_xyzw(streams: Streams) -> Streams:
+    """Mocap quaternions written ``x, y, z, w`` instead of ``w, x, y, z``."""
+    quaternion = streams.recording.mocap.quaternion
+    return _mocap(streams, quaternion=np.roll(quaternion, -1, axis=1))
+
+
+# ------------------------------------------------------------------------------ metadata
+
+
+def gravity_sign_flipped(streams: Streams) -> Streams:
+    """``recording.yaml``'s gravity with the wrong sign."""
+    return _info(streams, gravity=-np.asarray(streams.recording.info.gravity))
+
+
+def mount_identity(streams: Streams) -> Streams:
+    """``imu_to_body`` given as the identity instead of the real mount."""
+    return _info(streams, imu_to_body=np.array([1.0, 0.0, 0.0, 0.0]))
+
+
+def _visible_index_after(mocap: MocapFrames, t: float) -> int:
+    candidates = np.flatnonzero(mocap.visible & (mocap.t >= t))
+    if not len(candidates):
+        raise ValueError(f"no visible mocap frame after t = {t:.3f} s")
+    return int(candidates[0])
