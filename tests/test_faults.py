@@ -1,0 +1,101 @@
+"""Fault injection (kfusion.simulate.faults): each fault changes what it says and nothing else."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kfusion.conventions import matrix_from_wxyz
+from kfusion.recording import occlusion_runs
+from kfusion.simulate import OcclusionSpec, simulate
+from kfusion.simulate import faults as fault
+from kfusion.simulate.faults import Streams
+
+
+@pytest.fixture(scope="module")
+def streams():
+    simulation = simulate("random_reach", seed=2, duration=10.0,
+                          occlusions=OcclusionSpec(gap_range=(0.4, 0.6), spacing=1.5))
+    return Streams.of(simulation.recording)
+
+
+def test_streams_arrive_at_their_stamps_in_order(streams):
+    events = streams.events()
+    assert len(events) == len(streams.recording.imu) + len(streams.recording.mocap)
+    arrivals = [event[0] for event in events]
+    assert arrivals == sorted(arrivals)
+    # at equal times the IMU sample comes first
+    same = [(a, b) for a, b in zip(events, events[1:], strict=False) if a[0] == b[0]]
+    assert same and all(a[1] == 0 and b[1] == 1 for a, b in same)
+
+
+def test_imu_faults_change_only_the_imu(streams):
+    silent = fault.imu_silent(streams)
+    assert len(silent.recording.imu) == 0 and len(silent.imu_arrival) == 0
+    stopped = fault.imu_stops(streams, fraction=0.5)
+    middle = 0.5 * (streams.recording.mocap.t[0] + streams.recording.mocap.t[-1])
+    assert stopped.recording.imu.t.max() < middle <= streams.recording.imu.t.max()
+    for changed in (silent, stopped):
+        assert changed.recording.mocap is streams.recording.mocap
+
+
+def test_imu_misses_three_tenths_inside_each_gap(streams):
+    missing = fault.imu_misses_inside_gaps(streams, duration=0.3)
+    kept = set(missing.recording.imu.t.tolist())
+    dropped = np.array([t for t in streams.recording.imu.t if t not in kept])
+    mocap = streams.recording.mocap
+    runs = occlusion_runs(mocap.visible)
+    assert len(runs) >= 2
+    for start, stop in runs:
+        inside = dropped[(dropped > mocap.t[start - 1]) & (dropped < mocap.t[stop])]
+        # 0.3 s at 200 Hz: 59 or 60 samples strictly inside the window
+        assert 58 <= len(inside) <= 60
+        assert inside.max() - inside.min() <= 0.3
+    assert len(dropped) == len(streams.recording.imu) - len(missing.recording.imu)
+
+
+def test_clock_faults_change_stamps_not_arrival(streams):
+    behind = fault.imu_clock_offset(streams, -0.137)
+    np.testing.assert_allclose(behind.recording.imu.t, streams.recording.imu.t - 0.137)
+    np.testing.assert_array_equal(behind.imu_arrival, streams.imu_arrival)
+    milliseconds = fault.imu_time_in_milliseconds(streams)
+    np.testing.assert_allclose(milliseconds.recording.imu.t, streams.recording.imu.t * 1000)
+    future = fault.mocap_future_stamp(streams, ahead_s=1000.0)
+    changed = np.flatnonzero(future.recording.mocap.t != streams.recording.mocap.t)
+    assert len(changed) == 1 and streams.recording.mocap.visible[changed[0]]
+    assert future.recording.mocap.t[changed[0]] - streams.recording.mocap.t[changed[0]] == \
+        pytest.approx(1000.0)
+    np.testing.assert_array_equal(future.mocap_arrival, streams.mocap_arrival)
+
+
+def test_orientation_flip_is_a_half_turn_on_the_frame_before_each_gap(streams):
+    flipped = fault.orientation_flip_before_gaps(streams)
+    before = streams.recording.mocap.quaternion
+    after = flipped.recording.mocap.quaternion
+    rows = np.flatnonzero(~np.all(np.isclose(before, after) | np.isnan(before), axis=1))
+    assert rows.tolist() == [start - 1 for start, _ in
+                             occlusion_runs(streams.recording.mocap.visible) if start > 0]
+    for row in rows:
+        relative = matrix_from_wxyz(before[row]).T @ matrix_from_wxyz(after[row])
+        np.testing.assert_allclose(relative, np.diag([1.0, -1.0, -1.0]), atol=1e-12)
+
+
+def test_marker_swap_moves_visible_frames_for_one_second(streams):
+    swapped = fault.marker_swap(streams, fraction=0.5, duration_s=1.0, offset=(0.2, 0, 0))
+    mocap = streams.recording.mocap
+    moved = np.flatnonzero(np.any(swapped.recording.mocap.position != mocap.position, axis=1)
+                           & mocap.visible)
+    assert 0.9 <= mocap.t[moved[-1]] - mocap.t[moved[0]] < 1.0
+    np.testing.assert_allclose(swapped.recording.mocap.position[moved] - mocap.position[moved],
+                               np.tile([0.2, 0.0, 0.0], (len(moved), 1)), atol=1e-12)
+
+
+def test_metadata_and_column_order_faults(streams):
+    info = streams.recording.info
+    np.testing.assert_array_equal(fault.gravity_sign_flipped(streams).recording.info.gravity,
+                                  -info.gravity)
+    np.testing.assert_array_equal(fault.mount_identity(streams).recording.info.imu_to_body,
+                                  [1.0, 0.0, 0.0, 0.0])
+    xyzw = fault.quaternion_columns_xyzw(streams).recording.mocap.quaternion
+    np.testing.assert_array_equal(xyzw[:, 3], streams.recording.mocap.quaternion[:, 0])
+    np.testing.assert_array_equal(xyzw[:, :3], streams.recording.mocap.quaternion[:, 1:])
