@@ -44,10 +44,10 @@ class KalmanParameters:
     """Noise model and behaviour of :class:`kfusion.kalman.KalmanFusion`.
 
     Attributes (SI units):
-        accelerometer_noise_density: white-noise density sigma_a, m/s^2/sqrt(Hz), >= 0.
-        accelerometer_bias_random_walk: bias random-walk density sigma_b, m/s^3/sqrt(Hz), >= 0.
-        gyroscope_noise_density: white-noise density, rad/s/sqrt(Hz), >= 0.
-        gyroscope_bias_random_walk: bias random-walk density, rad/s^2/sqrt(Hz), >= 0.
+        accelerometer_noise_density: white-noise density sigma_a, m/s^2/sqrt(Hz), > 0.
+        accelerometer_bias_random_walk: bias random-walk density sigma_b, m/s^3/sqrt(Hz), > 0.
+        gyroscope_noise_density: white-noise density, rad/s/sqrt(Hz), > 0.
+        gyroscope_bias_random_walk: bias random-walk density, rad/s^2/sqrt(Hz), > 0.
         mocap_position_noise: 1-sigma per axis of a mocap position, m, > 0.
         mocap_orientation_noise: 1-sigma per axis of a mocap orientation, rad, >= 0.
         initial_bias_std: 1-sigma of the accelerometer bias before any fix, m/s^2, >= 0
@@ -82,7 +82,8 @@ class KalmanParameters:
             gate, the position covariance is first inflated so that the fix re-initialises it.
             >= 0.
         max_bridge_s: longest time (s) after the last accepted fix for which the output is
-            ``bridged``; later it is ``lost``. > 0.
+            ``bridged``; later it is ``lost``. > 0 and at most
+            :data:`kfusion.conventions.MAX_BRIDGE_LIMIT_S` (60 s).
         imu_dropout_s: an interval between IMU samples longer than this (s) is counted as a
             dropout (the prediction still runs over the real interval). > 0.
         tilt_error_inflation: scale (>= 0) of the process noise that accounts for the
