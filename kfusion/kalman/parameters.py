@@ -46,8 +46,8 @@ class KalmanParameters:
     Attributes (SI units):
         accelerometer_noise_density: white-noise density sigma_a, m/s^2/sqrt(Hz), > 0.
         accelerometer_bias_random_walk: bias random-walk density sigma_b, m/s^3/sqrt(Hz), > 0.
-        gyroscope_noise_density: white-noise density, rad/s/sqrt(Hz), > 0.
-        gyroscope_bias_random_walk: bias random-walk density, rad/s^2/sqrt(Hz), > 0.
+        gyroscope_noise_density: white-noise density, rad/s/sqrt(Hz), >= 0.
+        gyroscope_bias_random_walk: bias random-walk density, rad/s^2/sqrt(Hz), >= 0.
         mocap_position_noise: 1-sigma per axis of a mocap position, m, > 0.
         mocap_orientation_noise: 1-sigma per axis of a mocap orientation, rad, >= 0.
         initial_bias_std: 1-sigma of the accelerometer bias before any fix, m/s^2, >= 0
@@ -115,16 +115,18 @@ class KalmanParameters:
 
     def __post_init__(self) -> None:
         non_negative = (
-            "mocap_orientation_noise",
+            "gyroscope_noise_density", "gyroscope_bias_random_walk", "mocap_orientation_noise",
             "initial_bias_std", "initial_gyroscope_bias_std", "reacquire_after_s",
             "tilt_error_inflation", "accelerometer_scale_error", "gyroscope_scale_error",
             "lever_arm_std", "gate_min_innovation",
         )
-        # A zero noise density claims a noiseless sensor, which no IMU is: the covariance it
-        # drives collapses, the bound is then backed by nothing (errors 10-150x the 99 % bound
-        # on a simulated recording) and the smoother's predicted covariance can be singular.
+        # The accelerometer's densities are the only process noise of the position, velocity
+        # and bias states: zero claims a noiseless accelerometer, the covariance collapses (with
+        # every other term zero too: errors 10-150x the 99 % bound on a simulated recording) and
+        # the smoother's predicted covariance becomes singular. The gyroscope's may be zero (a
+        # noise-free gyroscope, as in model-matched simulations): the orientation covariance is
+        # never inverted.
         positive = ("accelerometer_noise_density", "accelerometer_bias_random_walk",
-                    "gyroscope_noise_density", "gyroscope_bias_random_walk",
                     "mocap_position_noise", "initial_velocity_std", "accelerometer_range",
                     "gyroscope_range", "max_bridge_s", "imu_dropout_s")
         for name in non_negative + positive + ("imu_latency_s",):
