@@ -275,8 +275,7 @@ class TrackerOptions:
         unknown = sorted(set(map(str, mapping)) - set(names))
         if unknown:
             raise ValueError(f"TrackerOptions: unknown key {short_repr(unknown[0])}; expected "
-                             "some of "
-                             f"{names}")
+                             f"some of {names}")
         return cls(**dict(mapping))
 
 
