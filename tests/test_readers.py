@@ -9,11 +9,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.io
+import yaml
 
 from kfusion.cli import main
 from kfusion.datasets import broad_excerpt, broad_trial, broad_trials
 from kfusion.readers import motive_rigid_bodies, read_broad, read_motive_csv
-from kfusion.recording import RecordingError, occlusion_runs, read_recording, write_recording
+from kfusion.recording import (
+    RecordingError,
+    occlusion_runs,
+    read_imu,
+    read_mocap,
+    read_recording,
+    write_recording,
+)
 
 FIXTURES = Path(__file__).parent / "fixtures"
 TAKE = FIXTURES / "motive_take.csv"
@@ -451,18 +459,31 @@ def convert(capsys, *arguments: str) -> tuple[int, str, str]:
     return status, captured.out, captured.err
 
 
-def test_convert_motive(tmp_path, capsys):
+def test_convert_motive_leaves_the_unknown_mount_out_and_names_the_next_step(tmp_path, capsys):
     imu = write_imu(tmp_path / "imu_in.csv")
     out = tmp_path / "rec"
     status, stdout, err = convert(capsys, "motive", str(TAKE), "--imu", str(imu), "--rigid-body",
                                   "Forearm", "--out", str(out))
     assert (status, err) == (0, "")
     assert "mocap: 20 frames at 120.0 Hz, 3 occluded" in stdout and "occlusions: 1" in stdout
-    recording = read_recording(out)
+    assert f"next: kfusion calibrate {out} --out {out / 'recording.yaml'}" in stdout
+    assert "--imu-to-body" in stdout.splitlines()[-1]
+    metadata = yaml.safe_load((out / "recording.yaml").read_text())
+    assert metadata == {"gravity": [0.0, -9.81, 0.0], "name": "motive_take"}  # Motive: y-up
     expected = read_motive_csv(TAKE, rigid_body="Forearm")
-    assert_same_bits(expected.position, recording.mocap.position)
-    assert_same_bits(expected.quaternion, recording.mocap.quaternion)
-    assert_same_bits([0.0, -9.81, 0.0], recording.info.gravity)  # Motive default: y-up
+    written = read_mocap(out / "mocap.csv")
+    assert_same_bits(expected.position, written.position)
+    assert_same_bits(expected.quaternion, written.quaternion)
+    assert len(read_imu(out / "imu.csv")) == 40
+
+
+def test_convert_motive_with_a_known_mount_is_ready_to_check(tmp_path, capsys):
+    imu = write_imu(tmp_path / "imu_in.csv")
+    out = tmp_path / "rec"
+    status, stdout, _ = convert(capsys, "motive", str(TAKE), "--imu", str(imu), "--rigid-body",
+                                "Forearm", "--imu-to-body", "1", "0", "0", "0", "--out", str(out))
+    assert status == 0 and f"next: kfusion check {out}, then kfusion track {out}" in stdout
+    recording = read_recording(out)
     assert_same_bits([1.0, 0.0, 0.0, 0.0], recording.info.imu_to_body)
     assert recording.info.name == "motive_take" and len(recording.imu) == 40
 
