@@ -19,6 +19,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from kfusion.conventions import LOST, STATUSES, TRACK_COLUMNS
+from kfusion.recording import RecordingError
 
 
 @dataclass(frozen=True)
@@ -82,3 +83,29 @@ def read_track_csv(path: str | Path) -> pd.DataFrame:
     if missing:
         raise ValueError(f"{path}: missing column(s) {missing}; expected {list(TRACK_COLUMNS)}")
     return frame[list(TRACK_COLUMNS)]
+
+
+def read_track(path: str | Path) -> TrackResult:
+    """A ``kfusion track`` CSV as a :class:`TrackResult` (``time_since_fix`` is not in the file:
+    NaN). :class:`~kfusion.recording.RecordingError` naming the file, row and column of a
+    non-numeric cell or an unknown status."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: file not found; expected a kfusion track CSV")
+    frame = read_track_csv(path)
+    numbers = frame[list(TRACK_COLUMNS[:7])].apply(pd.to_numeric, errors="coerce")
+    bad = numbers.isna().to_numpy() & frame[list(TRACK_COLUMNS[:7])].notna().to_numpy()
+    bad[:, 0] |= numbers["t"].isna().to_numpy()
+    if bad.any():
+        row, column = np.argwhere(bad)[0]
+        raise RecordingError(path.name, f"expected a number, got {frame.iat[row, column]!r}",
+                             row=int(row) + 1, column=TRACK_COLUMNS[column])
+    status = frame["status"].astype(str).to_numpy()
+    unknown = ~np.isin(status, STATUSES)
+    if unknown.any():
+        row = int(np.flatnonzero(unknown)[0])
+        raise RecordingError(path.name, f"expected one of {list(STATUSES)}, got {status[row]!r}",
+                             row=row + 1, column="status")
+    values = numbers.to_numpy(dtype=float)
+    return TrackResult(t=values[:, 0], position=values[:, 1:4], std=values[:, 4:7],
+                       status=status, time_since_fix=np.full(len(values), np.nan))
