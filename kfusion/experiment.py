@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -99,3 +100,24 @@ def format_table(table: pd.DataFrame) -> str:
         shown[column] = [("-" if pd.isna(v) else fmt.format(v)) if isinstance(v, (int, float,
                          np.floating)) else str(v) for v in shown[column]]
     return shown.to_string()
+
+
+TABLE_SIGNIFICANT_DIGITS = 10
+"""Significant digits of the numbers in written result tables (recordings keep every bit)."""
+COUNT_COLUMNS = ("samples", "gaps", "seeds")
+"""Result-table columns that count things: written as integers."""
+
+
+def write_table_csv(table: pd.DataFrame, path: str | Path, *, index: bool = True) -> Path:
+    """Write a result table as CSV for people to read: counts as integers (``416``, not
+    ``416.0``), other numbers to :data:`TABLE_SIGNIFICANT_DIGITS` significant digits (``0.12``,
+    not ``0.1200000000000001``), NaN as an empty cell. Returns the path."""
+    path = Path(path)
+    table = table.copy()
+    for column in table.columns:
+        values = table[column]
+        if str(column) in COUNT_COLUMNS and pd.api.types.is_float_dtype(values) \
+                and bool((values.dropna() % 1 == 0).all()):
+            table[column] = values.astype("Int64")
+    table.to_csv(path, index=index, float_format=f"%.{TABLE_SIGNIFICANT_DIGITS}g")
+    return path

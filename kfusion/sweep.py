@@ -49,7 +49,13 @@ from tqdm import tqdm
 import kfusion
 from kfusion.config import RunConfig, SweepConfig, fingerprint
 from kfusion.evaluate import GapErrors, metrics_from_errors
-from kfusion.experiment import MethodRun, ScoredRecording, run_method, summary_table
+from kfusion.experiment import (
+    MethodRun,
+    ScoredRecording,
+    run_method,
+    summary_table,
+    write_table_csv,
+)
 from kfusion.track import TrackResult
 
 AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
@@ -158,7 +164,7 @@ class ExperimentResult:
         for file_name, table, index in (("summary.csv", self.summary(), True),
                                         ("per_recording.csv", self.per_recording(), True),
                                         ("per_gap.csv", self.per_gap(), False)):
-            table.to_csv(directory / file_name, index=index)
+            write_table_csv(table, directory / file_name, index=index)
             written.append(directory / file_name)
         plots = self.config.output.plots
         if plots.trajectory:
@@ -606,7 +612,7 @@ def run_sweep(config: SweepConfig, out: str | Path | None = None, *, workers: in
     if not results.empty:
         results.to_parquet(directory / RESULTS_FILE, index=False)
     summary = summarise_results(results, config.axes)
-    summary.to_csv(directory / SUMMARY_FILE)
+    write_table_csv(summary, directory / SUMMARY_FILE)
     figures = draw_heatmaps(config, results, directory)
     return SweepResult(directory=directory, results=results, summary=summary, ran=ran,
                        skipped=skipped, failed=failed, figures=figures)

@@ -13,10 +13,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 from kfusion.conventions import LOST, STATUSES, TRACK_COLUMNS
 from kfusion.recording import RecordingError
@@ -62,6 +65,8 @@ class TrackResult:
 
     def to_frame(self) -> pd.DataFrame:
         """The ``kfusion track`` table as a DataFrame (NaN where a cell is empty)."""
+        import pandas as pd  # on first use: `import kfusion.tracker` stays light
+
         frame = pd.DataFrame(np.column_stack([self.t, self.position, self.std]),
                              columns=TRACK_COLUMNS[:7])
         frame["status"] = np.asarray(self.status, dtype=str)
@@ -78,6 +83,8 @@ def write_track_csv(result: TrackResult, path: str | Path) -> Path:
 
 def read_track_csv(path: str | Path) -> pd.DataFrame:
     """Read a ``kfusion track`` CSV back as a DataFrame with the documented columns."""
+    import pandas as pd  # on first use: `import kfusion.tracker` stays light
+
     frame = pd.read_csv(path)
     missing = [c for c in TRACK_COLUMNS if c not in frame.columns]
     if missing:
@@ -89,6 +96,8 @@ def read_track(path: str | Path) -> TrackResult:
     """A ``kfusion track`` CSV as a :class:`TrackResult` (``time_since_fix`` is not in the file:
     NaN). :class:`~kfusion.recording.RecordingError` naming the file, row and column of a
     non-numeric cell or an unknown status."""
+    import pandas as pd  # on first use: `import kfusion.tracker` stays light
+
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: file not found; expected a kfusion track CSV")

@@ -741,7 +741,8 @@ class Tracker:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Tracker:
-        """A tracker from a YAML file (schema of :meth:`from_mapping`)."""
+        """A tracker from a YAML file (schema of :meth:`from_mapping`), such as a recording's
+        ``recording.yaml``: its ``name`` key, a label with no tracker setting, is ignored."""
         path = Path(path)
         if not path.is_file():
             raise ValueError(f"{path}: file not found")
@@ -749,6 +750,8 @@ class Tracker:
             data = yaml.safe_load(path.read_text())
         except yaml.YAMLError as error:
             raise ValueError(f"{path}: not valid YAML ({error})".replace("\n", " ")) from None
+        if isinstance(data, dict):
+            data = {key: value for key, value in data.items() if key != "name"}
         return cls.from_mapping(data, source=str(path))
 
     def _new_estimator(self) -> _Estimator:

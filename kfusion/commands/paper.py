@@ -38,6 +38,7 @@ import pandas as pd
 from kfusion.baseline import BaselineParameters, fit_velocity, track_recording
 from kfusion.calibration import calibrate_gain
 from kfusion.conventions import rotation_from_wxyz
+from kfusion.experiment import write_table_csv
 from kfusion.paper import TABLE_1_TYPE_1_MM, TABLE_1_TYPE_2_MM, USE_CASE_MM
 from kfusion.recording import occlusion_runs
 
@@ -334,9 +335,9 @@ def run(args: argparse.Namespace) -> int:
     run_tables = reproduce(args.seeds, args.duration)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    run_tables.table1.to_csv(out / "table1.csv", index=False)
-    run_tables.use_case.to_csv(out / "use_case.csv", index=False)
-    run_tables.per_gap.to_csv(out / "per_gap.csv", index=False)
+    write_table_csv(run_tables.table1, out / "table1.csv", index=False)
+    write_table_csv(run_tables.use_case, out / "use_case.csv", index=False)
+    write_table_csv(run_tables.per_gap, out / "per_gap.csv", index=False)
     text = report(run_tables, args.seeds, args.duration)
     (out / "report.md").write_text(text)
     print(text)
