@@ -5,21 +5,27 @@ Each subcommand lives in its own module in :mod:`kfusion.commands`, which define
 * ``NAME`` (the subcommand), ``HELP`` (one line), ``ORDER`` (position in ``--help``);
 * ``add_arguments(parser)`` and ``run(args) -> int``.
 
-The modules are found at start-up, so a new command needs no edit here. A user mistake
-(``ValueError``, including :class:`kfusion.recording.RecordingError`, or an ``OSError``: a missing
-file, a folder given for a file, no permission, a full disk) prints one line
-``kfusion NAME: error: ...`` and exits with status 2, never a traceback. ``KFUSION_DEBUG=1``
+The modules are found at start-up, so a new command needs no edit here. Start-up reads only
+``NAME``, ``HELP`` and ``ORDER`` from each module's source (literals, read with :mod:`ast`) and
+imports just the module of the command being run, so ``kfusion --help`` and ``kfusion --version``
+load no numerical library. A user mistake (``ValueError``, including
+:class:`kfusion.recording.RecordingError`, or an ``OSError``: a missing file, a folder given for a
+file, no permission, a full disk) prints one line ``kfusion NAME: error: ...`` and exits with
+status 2, never a traceback. ``KFUSION_DEBUG=1``
 shows the traceback.
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
 import os
 import pkgutil
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
 from types import ModuleType
 
 import kfusion
@@ -29,28 +35,79 @@ MAX_MESSAGE_CHARS = 2000
 """An error line is cut to this length (messages state expected and received values shortly,
 but a value from a file must never flood the terminal)."""
 
+COMMAND_CONSTANTS = ("NAME", "HELP", "ORDER")
+
+
+@dataclass(frozen=True)
+class CommandSpec:
+    """A subcommand as listed by ``kfusion --help``: its module and its three constants."""
+
+    module: str
+    name: str
+    help: str
+    order: int
+
+
+def _literal_constants(path: Path) -> dict[str, object]:
+    """``NAME``, ``HELP`` and ``ORDER`` assigned as literals at the top of a module's source."""
+    constants: dict[str, object] = {}
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 \
+                and isinstance(node.targets[0], ast.Name) \
+                and node.targets[0].id in COMMAND_CONSTANTS:
+            try:
+                constants[node.targets[0].id] = ast.literal_eval(node.value)
+            except ValueError:
+                pass  # not a literal: the module is imported instead
+    return constants
+
+
+def command_specs() -> list[CommandSpec]:
+    """Every subcommand, in ``--help`` order, read without importing the modules (a module whose
+    constants are not literals is imported)."""
+    specs = []
+    for info in pkgutil.iter_modules(kfusion.commands.__path__):
+        if info.name.startswith("_"):
+            continue
+        module = f"kfusion.commands.{info.name}"
+        constants = _literal_constants(Path(kfusion.commands.__path__[0]) / f"{info.name}.py")
+        if set(constants) != set(COMMAND_CONSTANTS):
+            imported = importlib.import_module(module)
+            if not hasattr(imported, "NAME"):
+                continue
+            constants = {key: getattr(imported, key) for key in COMMAND_CONSTANTS}
+        specs.append(CommandSpec(module, str(constants["NAME"]), str(constants["HELP"]),
+                                 int(str(constants["ORDER"]))))
+    return sorted(specs, key=lambda spec: (spec.order, spec.name))
+
 
 def _command_modules() -> list[ModuleType]:
-    modules = [
-        importlib.import_module(f"kfusion.commands.{info.name}")
-        for info in pkgutil.iter_modules(kfusion.commands.__path__)
-        if not info.name.startswith("_")
-    ]
-    return sorted((m for m in modules if hasattr(m, "NAME")), key=lambda m: (m.ORDER, m.NAME))
+    """Every subcommand's module, imported (for tests and tools that need them all)."""
+    return [importlib.import_module(spec.module) for spec in command_specs()]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with every subcommand registered."""
+def _chosen_command(argv: Sequence[str]) -> str | None:
+    """The subcommand named in ``argv``: its first argument not starting with ``-`` (the
+    top-level options ``--help`` and ``--version`` take no value)."""
+    return next((argument for argument in argv if not argument.startswith("-")), None)
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The top-level parser. Every subcommand is listed; with ``argv`` only the one it names is
+    imported and given its arguments, without it all are."""
     parser = argparse.ArgumentParser(
         prog="kfusion",
         description="Fuse optical motion capture with a limb IMU through occlusions.",
     )
     parser.add_argument("--version", action="version", version=f"kfusion {kfusion.__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in _command_modules():
-        sub = subparsers.add_parser(module.NAME, help=module.HELP, description=module.HELP)
-        module.add_arguments(sub)
-        sub.set_defaults(_run=module.run, _name=module.NAME)
+    chosen = None if argv is None else _chosen_command(argv)
+    for spec in command_specs():
+        sub = subparsers.add_parser(spec.name, help=spec.help, description=spec.help)
+        if argv is None or spec.name == chosen:
+            module = importlib.import_module(spec.module)
+            module.add_arguments(sub)
+            sub.set_defaults(_run=module.run, _name=spec.name)
     return parser
 
 
@@ -70,8 +127,9 @@ def error_line(error: BaseException) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``kfusion`` console script; returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    arguments = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(arguments)
+    args = parser.parse_args(arguments)
     try:
         return int(args._run(args) or 0)
     except BrokenPipeError:

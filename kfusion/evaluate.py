@@ -6,6 +6,7 @@ Definitions used in every table kfusion prints:
   simulator's truth, or the hidden mocap of a real recording);
 * the *error* of a sample is ``e = estimate - truth`` (m, global frame) and its size ``|e|``;
 * ``rms_mm = 1000 sqrt(mean |e|^2)`` and ``max_mm = 1000 max |e|`` over gap samples;
+  ``p95_mm`` (``kfusion score``) is the 95th percentile of ``1000 |e|`` (linear interpolation);
 * ``coverage_3sigma`` is the fraction of gap samples with ``|e_i| <= 3 std_i`` on every axis
   i = x, y, z (for a calibrated Gaussian estimate, 0.9973^3 = 0.992 is expected); NaN for
   methods without an uncertainty;
@@ -172,6 +173,13 @@ def metrics_from_errors(errors: GapErrors) -> dict[str, float]:
         "coverage_3sigma": coverage,
         "lost_fraction": errors.lost / total,
     }
+
+
+def error_percentile_mm(errors: GapErrors, percent: float) -> float:
+    """The ``percent``-th percentile of the error sizes ``1000 |e|``, mm (NaN without samples)."""
+    if errors.error.shape[0] == 0:
+        return float("nan")
+    return 1000 * float(np.percentile(np.linalg.norm(errors.error, axis=1), percent))
 
 
 def gap_metrics(result: TrackResult, truth_position: NDArray, gap_mask: NDArray

@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -16,6 +17,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from kfusion.evaluate import GapErrors, gap_errors, metrics_from_errors, per_gap_errors
+from kfusion.guards import atomic_write
 from kfusion.methods import track_recording
 from kfusion.recording import Recording
 from kfusion.track import TrackResult
@@ -99,3 +101,25 @@ def format_table(table: pd.DataFrame) -> str:
         shown[column] = [("-" if pd.isna(v) else fmt.format(v)) if isinstance(v, (int, float,
                          np.floating)) else str(v) for v in shown[column]]
     return shown.to_string()
+
+
+TABLE_SIGNIFICANT_DIGITS = 10
+"""Significant digits of the numbers in written result tables (recordings keep every bit)."""
+COUNT_COLUMNS = ("samples", "gaps", "seeds")
+"""Result-table columns that count things: written as integers."""
+
+
+def write_table_csv(table: pd.DataFrame, path: str | Path, *, index: bool = True) -> Path:
+    """Write a result table as CSV for people to read: counts as integers (``416``, not
+    ``416.0``), other numbers to :data:`TABLE_SIGNIFICANT_DIGITS` significant digits (``0.12``,
+    not ``0.1200000000000001``), NaN as an empty cell. Written atomically
+    (:func:`kfusion.guards.atomic_write`). Returns the path."""
+    path = Path(path)
+    table = table.copy()
+    for column in table.columns:
+        values = table[column]
+        if str(column) in COUNT_COLUMNS and pd.api.types.is_float_dtype(values) \
+                and bool((values.dropna() % 1 == 0).all()):
+            table[column] = values.astype("Int64")
+    return atomic_write(path, lambda temporary: table.to_csv(
+        temporary, index=index, float_format=f"%.{TABLE_SIGNIFICANT_DIGITS}g"))

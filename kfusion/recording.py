@@ -25,11 +25,14 @@ import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 import yaml
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 from kfusion.conventions import (
     GRAVITY_MAGNITUDE_RANGE,
@@ -252,6 +255,8 @@ def occlusion_durations(t: NDArray[np.float64], visible: NDArray[np.bool_]) -> N
 
 def _read_table(path: Path, columns: Sequence[str]) -> tuple[pd.DataFrame, NDArray[np.bool_]]:
     """Read a CSV as floats; return the frame and a mask of cells that were empty in the file."""
+    import pandas as pd  # on first use: `import kfusion.tracker` stays light
+
     if not path.is_file():
         raise RecordingError(path.name, f"file not found in {path.parent}")
     try:
@@ -524,6 +529,8 @@ def read_recording(folder: str | Path, *, zero_position_means_occluded: bool = F
 
 
 def _write_csv(path: Path, columns: Sequence[str], values: NDArray) -> None:
+    import pandas as pd  # on first use: `import kfusion.tracker` stays light
+
     # pandas writes floats with repr(), the shortest string that reads back to the same double,
     # so write -> read round-trips exactly. NaN becomes an empty cell.
     frame = pd.DataFrame(np.asarray(values, dtype=float), columns=list(columns))

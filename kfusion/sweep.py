@@ -28,7 +28,6 @@ distributed cluster (:class:`DaskExecutor`); both yield finished runs in complet
 from __future__ import annotations
 
 import contextlib
-import functools
 import json
 import os
 import signal
@@ -50,7 +49,13 @@ from tqdm import tqdm
 import kfusion
 from kfusion.config import RunConfig, SweepConfig, fingerprint
 from kfusion.evaluate import GapErrors, metrics_from_errors
-from kfusion.experiment import MethodRun, ScoredRecording, run_method, summary_table
+from kfusion.experiment import (
+    MethodRun,
+    ScoredRecording,
+    run_method,
+    summary_table,
+    write_table_csv,
+)
 from kfusion.guards import atomic_write, atomic_write_text
 from kfusion.track import TrackResult
 
@@ -160,7 +165,7 @@ class ExperimentResult:
         for file_name, table, index in (("summary.csv", self.summary(), True),
                                         ("per_recording.csv", self.per_recording(), True),
                                         ("per_gap.csv", self.per_gap(), False)):
-            atomic_write(directory / file_name, functools.partial(table.to_csv, index=index))
+            write_table_csv(table, directory / file_name, index=index)
             written.append(directory / file_name)
         plots = self.config.output.plots
         if plots.trajectory:
@@ -607,7 +612,7 @@ def run_sweep(config: SweepConfig, out: str | Path | None = None, *, workers: in
         atomic_write(directory / RESULTS_FILE,
                      lambda temporary: results.to_parquet(temporary, index=False))
     summary = summarise_results(results, config.axes)
-    atomic_write(directory / SUMMARY_FILE, summary.to_csv)
+    write_table_csv(summary, directory / SUMMARY_FILE)
     figures = draw_heatmaps(config, results, directory)
     return SweepResult(directory=directory, results=results, summary=summary, ran=ran,
                        skipped=skipped, failed=failed, figures=figures)

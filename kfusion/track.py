@@ -13,13 +13,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 from kfusion.conventions import LOST, STATUSES, TRACK_COLUMNS
 from kfusion.guards import atomic_write
+from kfusion.recording import RecordingError
 
 
 @dataclass(frozen=True)
@@ -62,6 +66,8 @@ class TrackResult:
 
     def to_frame(self) -> pd.DataFrame:
         """The ``kfusion track`` table as a DataFrame (NaN where a cell is empty)."""
+        import pandas as pd  # on first use: `import kfusion.tracker` stays light
+
         frame = pd.DataFrame(np.column_stack([self.t, self.position, self.std]),
                              columns=TRACK_COLUMNS[:7])
         frame["status"] = np.asarray(self.status, dtype=str)
@@ -77,8 +83,38 @@ def write_track_csv(result: TrackResult, path: str | Path) -> Path:
 
 def read_track_csv(path: str | Path) -> pd.DataFrame:
     """Read a ``kfusion track`` CSV back as a DataFrame with the documented columns."""
+    import pandas as pd  # on first use: `import kfusion.tracker` stays light
+
     frame = pd.read_csv(path)
     missing = [c for c in TRACK_COLUMNS if c not in frame.columns]
     if missing:
         raise ValueError(f"{path}: missing column(s) {missing}; expected {list(TRACK_COLUMNS)}")
     return frame[list(TRACK_COLUMNS)]
+
+
+def read_track(path: str | Path) -> TrackResult:
+    """A ``kfusion track`` CSV as a :class:`TrackResult` (``time_since_fix`` is not in the file:
+    NaN). :class:`~kfusion.recording.RecordingError` naming the file, row and column of a
+    non-numeric cell or an unknown status."""
+    import pandas as pd  # on first use: `import kfusion.tracker` stays light
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: file not found; expected a kfusion track CSV")
+    frame = read_track_csv(path)
+    numbers = frame[list(TRACK_COLUMNS[:7])].apply(pd.to_numeric, errors="coerce")
+    bad = numbers.isna().to_numpy() & frame[list(TRACK_COLUMNS[:7])].notna().to_numpy()
+    bad[:, 0] |= numbers["t"].isna().to_numpy()
+    if bad.any():
+        row, column = np.argwhere(bad)[0]
+        raise RecordingError(path.name, f"expected a number, got {frame.iat[row, column]!r}",
+                             row=int(row) + 1, column=TRACK_COLUMNS[column])
+    status = frame["status"].astype(str).to_numpy()
+    unknown = ~np.isin(status, STATUSES)
+    if unknown.any():
+        row = int(np.flatnonzero(unknown)[0])
+        raise RecordingError(path.name, f"expected one of {list(STATUSES)}, got {status[row]!r}",
+                             row=row + 1, column="status")
+    values = numbers.to_numpy(dtype=float)
+    return TrackResult(t=values[:, 0], position=values[:, 1:4], std=values[:, 4:7],
+                       status=status, time_since_fix=np.full(len(values), np.nan))

@@ -744,7 +744,8 @@ class Tracker:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Tracker:
-        """A tracker from a YAML file (schema of :meth:`from_mapping`)."""
+        """A tracker from a YAML file (schema of :meth:`from_mapping`), such as a recording's
+        ``recording.yaml``: its ``name`` key, a label with no tracker setting, is ignored."""
         path = Path(path)
         if not path.is_file():
             raise ValueError(f"{path}: file not found")
@@ -753,6 +754,8 @@ class Tracker:
         except YamlError as error:
             reason = f"not valid YAML ({error.reason})" if error.syntax else error.reason
             raise ValueError(f"{path}: {reason}") from None
+        if isinstance(data, dict):
+            data = {key: value for key, value in data.items() if key != "name"}
         return cls.from_mapping(data, source=str(path))
 
     def _new_estimator(self) -> _Estimator:

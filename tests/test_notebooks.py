@@ -14,6 +14,11 @@ nbclient = pytest.importorskip("nbclient")
 NOTEBOOK_DIRECTORY = Path(__file__).resolve().parents[1] / "notebooks"
 NOTEBOOKS = sorted(NOTEBOOK_DIRECTORY.glob("*.ipynb"))
 CELL_TIMEOUT_S = 300
+FULL_BROAD_NOTEBOOKS = {"03_broad_real_data"}
+"""Notebooks that read the BROAD ``.mat`` trials: they skip without the full set."""
+RUN_CASES = [pytest.param(path, id=path.stem,
+                          marks=[pytest.mark.broad] if path.stem in FULL_BROAD_NOTEBOOKS else [])
+             for path in NOTEBOOKS]
 
 
 def code_cells(path: Path) -> list:
@@ -47,7 +52,7 @@ def test_notebook_imports_only_kfusion(path):
             assert all(module.split(".")[0] == "kfusion" for module in modules), modules
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+@pytest.mark.parametrize("path", RUN_CASES)
 def test_notebook_runs_from_a_clean_kernel(path, tmp_path, monkeypatch):
     monkeypatch.setenv("KFUSION_NOTEBOOK_QUICK", "1")
     monkeypatch.setenv("TMPDIR", str(tmp_path))  # the sweeps' temporary folders

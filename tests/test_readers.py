@@ -9,11 +9,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.io
+import yaml
 
 from kfusion.cli import main
-from kfusion.datasets import broad_trials
+from kfusion.datasets import broad_excerpt, broad_trial, broad_trials
 from kfusion.readers import motive_rigid_bodies, read_broad, read_motive_csv
-from kfusion.recording import RecordingError, read_recording, write_recording
+from kfusion.recording import (
+    RecordingError,
+    occlusion_runs,
+    read_imu,
+    read_mocap,
+    read_recording,
+    write_recording,
+)
 
 FIXTURES = Path(__file__).parent / "fixtures"
 TAKE = FIXTURES / "motive_take.csv"
@@ -396,6 +404,43 @@ def test_real_broad_trial(smallest_trial, tmp_path):
     assert read.info.name == smallest_trial.stem and read.info.imu == "broad"
 
 
+EXCERPT_WINDOW_S = (56.0, 92.0)
+"""Trial 21's clock window kept in the bundled excerpt (kfusion/data/README.md)."""
+
+
+def test_bundled_broad_excerpt_is_a_valid_recording_with_real_dropouts(capsys):
+    excerpt = read_recording(broad_excerpt())
+    assert excerpt.info.name == "21_undisturbed_fast_combined" and excerpt.info.imu == "broad"
+    assert_same_bits([0.0, 0.0, -9.81], excerpt.info.gravity)
+    assert len(excerpt.imu) == 10286 and len(excerpt.mocap) == 3428
+    assert EXCERPT_WINDOW_S[0] <= excerpt.imu.t[0] and excerpt.imu.t[-1] < EXCERPT_WINDOW_S[1]
+    np.testing.assert_allclose(np.diff(excerpt.mocap.t), 3 * 0.0035, rtol=1e-6)  # every 3rd
+    # real occlusions inside the motion: 31 rows from 64.63 s and 8 rows from 87.64 s
+    runs = [(excerpt.mocap.t[start], stop - start) for start, stop in
+            occlusion_runs(excerpt.mocap.visible)]
+    assert [(round(start, 2), rows) for start, rows in runs] == [(64.63, 31), (87.64, 8)]
+    # real fast motion: gyroscope beyond 10 rad/s, specific force beyond 2 g
+    assert np.linalg.norm(excerpt.imu.gyroscope, axis=1).max() > 10.0
+    assert np.linalg.norm(excerpt.imu.accelerometer, axis=1).max() > 2 * 9.81
+    assert main(["check", str(broad_excerpt())]) == 0
+    capsys.readouterr()
+
+
+@pytest.mark.broad
+def test_bundled_excerpt_is_trial_21_read_every_third_frame():
+    trial = read_broad(broad_trial("21"), mocap_step=3)
+    excerpt = read_recording(broad_excerpt())
+    start, stop = EXCERPT_WINDOW_S
+    imu_kept = (trial.imu.t >= start) & (trial.imu.t < stop)
+    mocap_kept = (trial.mocap.t >= start) & (trial.mocap.t < stop)
+    assert_same_bits(trial.imu.t[imu_kept], excerpt.imu.t)
+    assert_same_bits(trial.imu.accelerometer[imu_kept], excerpt.imu.accelerometer)
+    assert_same_bits(trial.imu.gyroscope[imu_kept], excerpt.imu.gyroscope)
+    assert_same_bits(trial.mocap.t[mocap_kept], excerpt.mocap.t)
+    assert_same_bits(trial.mocap.position[mocap_kept], excerpt.mocap.position)
+    assert_same_bits(trial.mocap.quaternion[mocap_kept], excerpt.mocap.quaternion)
+
+
 # ------------------------------------------------------------------------------------------
 # kfusion convert
 # ------------------------------------------------------------------------------------------
@@ -414,18 +459,31 @@ def convert(capsys, *arguments: str) -> tuple[int, str, str]:
     return status, captured.out, captured.err
 
 
-def test_convert_motive(tmp_path, capsys):
+def test_convert_motive_leaves_the_unknown_mount_out_and_names_the_next_step(tmp_path, capsys):
     imu = write_imu(tmp_path / "imu_in.csv")
     out = tmp_path / "rec"
     status, stdout, err = convert(capsys, "motive", str(TAKE), "--imu", str(imu), "--rigid-body",
                                   "Forearm", "--out", str(out))
     assert (status, err) == (0, "")
     assert "mocap: 20 frames at 120.0 Hz, 3 occluded" in stdout and "occlusions: 1" in stdout
-    recording = read_recording(out)
+    assert f"next: kfusion calibrate {out} --out {out / 'recording.yaml'}" in stdout
+    assert "--imu-to-body" in stdout.splitlines()[-1]
+    metadata = yaml.safe_load((out / "recording.yaml").read_text())
+    assert metadata == {"gravity": [0.0, -9.81, 0.0], "name": "motive_take"}  # Motive: y-up
     expected = read_motive_csv(TAKE, rigid_body="Forearm")
-    assert_same_bits(expected.position, recording.mocap.position)
-    assert_same_bits(expected.quaternion, recording.mocap.quaternion)
-    assert_same_bits([0.0, -9.81, 0.0], recording.info.gravity)  # Motive default: y-up
+    written = read_mocap(out / "mocap.csv")
+    assert_same_bits(expected.position, written.position)
+    assert_same_bits(expected.quaternion, written.quaternion)
+    assert len(read_imu(out / "imu.csv")) == 40
+
+
+def test_convert_motive_with_a_known_mount_is_ready_to_check(tmp_path, capsys):
+    imu = write_imu(tmp_path / "imu_in.csv")
+    out = tmp_path / "rec"
+    status, stdout, _ = convert(capsys, "motive", str(TAKE), "--imu", str(imu), "--rigid-body",
+                                "Forearm", "--imu-to-body", "1", "0", "0", "0", "--out", str(out))
+    assert status == 0 and f"next: kfusion check {out}, then kfusion track {out}" in stdout
+    recording = read_recording(out)
     assert_same_bits([1.0, 0.0, 0.0, 0.0], recording.info.imu_to_body)
     assert recording.info.name == "motive_take" and len(recording.imu) == 40
 

@@ -13,10 +13,11 @@ import numpy as np
 import pytest
 
 from kfusion.config import first_seconds
-from kfusion.datasets import broad_trial
+from kfusion.datasets import broad_excerpt, broad_trial
 from kfusion.evaluate import cut_gaps
 from kfusion.experiment import ScoredRecording, run_method, summary_table
 from kfusion.readers.broad import read_broad
+from kfusion.recording import Recording, read_recording
 from kfusion.simulate import OcclusionSpec, simulate
 
 METHODS = ("baseline", "kalman", "smoother")
@@ -47,14 +48,23 @@ def test_simulated_paper_experiment_meets_the_targets(scenario, placement):
     assert table.loc["kalman", "lost_fraction"] == 0.0
 
 
-@pytest.mark.parametrize("trial", ["10", "21"])
-def test_real_broad_trial_with_cut_gaps_meets_the_targets(trial):
-    recording = first_seconds(read_broad(broad_trial(trial), mocap_step=3), 90.0)
+def assert_real_targets(name: str, recording: Recording) -> None:
     gapped = cut_gaps(recording, rng=np.random.default_rng(7), gap_range=(0.1, 0.3))
-    table = score([ScoredRecording(trial, gapped.recording, gapped.truth_position,
+    table = score([ScoredRecording(name, gapped.recording, gapped.truth_position,
                                    gapped.gap_mask)])
     assert table.loc["kalman", "samples"] > 200
     assert table.loc["kalman", "rms_mm"] <= 8.0
     assert table.loc["kalman", "baseline_over_method"] >= 5.0
     assert table.loc["kalman", "coverage_3sigma"] >= 0.95
     assert table.loc["smoother", "rms_mm"] < table.loc["kalman", "rms_mm"]
+
+
+def test_bundled_broad_excerpt_with_cut_gaps_meets_the_targets():
+    """Always runs: 36 s of real fast combined motion shipped with kfusion."""
+    assert_real_targets("21_excerpt", read_recording(broad_excerpt()))
+
+
+@pytest.mark.broad
+@pytest.mark.parametrize("trial", ["10", "21"])
+def test_real_broad_trial_with_cut_gaps_meets_the_targets(trial):
+    assert_real_targets(trial, first_seconds(read_broad(broad_trial(trial), mocap_step=3), 90.0))

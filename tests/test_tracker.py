@@ -522,6 +522,14 @@ def test_from_yaml(tmp_path: Path):
     assert tracker.max_bridge_s == 0.5
 
 
+def test_from_yaml_reads_a_recordings_own_metadata_file():
+    # recording.yaml as every command writes it, including its name: nothing to edit first
+    from kfusion.datasets import broad_excerpt
+
+    tracker = Tracker.from_yaml(broad_excerpt() / "recording.yaml")
+    assert tracker.imu_profile.name == "broad" and tracker.method == "kalman"
+
+
 @pytest.mark.parametrize(("text", "match"), [
     ("imu_to_body: [1, 0, 0, 0]\ngravity: [0, -9.81, 0]\nmax_bridge: 1\n",
      r"tracker.yaml: unknown key 'max_bridge'; expected some of \['imu_to_body'"),

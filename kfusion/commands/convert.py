@@ -2,17 +2,22 @@
 
 * ``motive TAKE.csv --imu IMU.csv``: an OptiTrack Motive CSV export (one rigid body) plus an IMU
   file in the ``imu.csv`` layout on the same clock. Motive's world is y-up by default, hence the
-  default gravity ``[0, -9.81, 0]``; ``--imu-to-body`` defaults to identity.
+  default gravity ``[0, -9.81, 0]``. The IMU mount is never guessed: without ``--imu-to-body``
+  ``recording.yaml`` has no ``imu_to_body`` and the command prints the next step,
+  ``kfusion calibrate DIR --out DIR/recording.yaml``.
 * ``broad FILE.mat``: a BROAD trial; ``--mocap-step 3`` keeps every 3rd mocap frame (~95 Hz).
 
-The folder written is read back and validated (as ``kfusion check`` does) before the summary is
-printed, so a converted folder always passes ``kfusion check``.
+The files written are read back and validated (as ``kfusion check`` does) before the summary is
+printed. A folder converted with its mount given passes ``kfusion check`` at once; one without
+passes it once ``kfusion calibrate`` has written the mount.
 """
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+
+import yaml
 
 from kfusion.commands.check import summarise
 from kfusion.conventions import OPTITRACK_GRAVITY
@@ -26,8 +31,10 @@ from kfusion.recording import (
     ImuSamples,
     MocapFrames,
     Recording,
+    info_to_dict,
     parse_info,
     read_imu,
+    read_mocap,
     read_recording,
     write_recording,
 )
@@ -60,8 +67,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     motive.add_argument("--rigid-body", metavar="NAME",
                         help="rigid body to read (default: the only one in the export)")
     motive.add_argument("--imu-to-body", nargs=4, type=float, metavar=("W", "X", "Y", "Z"),
-                        default=[1.0, 0.0, 0.0, 0.0],
-                        help="unit quaternion IMU -> rigid body (default: identity)")
+                        help="unit quaternion IMU -> rigid body, if known (default: left out "
+                        "of recording.yaml; then run kfusion calibrate DIR --out "
+                        "DIR/recording.yaml)")
     motive.add_argument("--gravity", nargs=3, type=float, metavar=("GX", "GY", "GZ"),
                         default=list(OPTITRACK_GRAVITY),
                         help="gravity in the mocap world, m/s^2 (default: y-up 0 -9.81 0)")
@@ -93,6 +101,17 @@ def check_same_clock(imu: ImuSamples, mocap: MocapFrames) -> None:
                          "clock (shift the IMU file's t)")
 
 
+UNKNOWN_MOUNT_PLACEHOLDER = (1.0, 0.0, 0.0, 0.0)
+"""Validates the other options when --imu-to-body is absent; never written to a file."""
+
+
+def next_step(folder: Path) -> str:
+    """What to run after converting without ``--imu-to-body``."""
+    return (f"imu_to_body: not given, left out of {folder / META_FILE}; next: kfusion calibrate "
+            f"{folder} --out {folder / META_FILE} (or convert again with --imu-to-body W X Y Z "
+            f"if the mount is known), then kfusion check {folder}")
+
+
 def _convert_motive(args: argparse.Namespace) -> Recording:
     take = Path(args.take)
     mocap = read_motive_csv(take, rigid_body=args.rigid_body,
@@ -101,7 +120,8 @@ def _convert_motive(args: argparse.Namespace) -> Recording:
     check_same_clock(imu, mocap)
     if args.imu_profile is not None:
         imu_profile(args.imu_profile)  # ValueError listing the known profiles
-    options = {"imu_to_body": args.imu_to_body, "gravity": args.gravity,
+    mount = args.imu_to_body if args.imu_to_body is not None else UNKNOWN_MOUNT_PLACEHOLDER
+    options = {"imu_to_body": mount, "gravity": args.gravity,
                "name": args.name or take.stem, "imu": args.imu_profile,
                "lever_arm": args.lever_arm}
     info = parse_info(options, COMMAND_LINE)
@@ -122,13 +142,30 @@ def check_output_folder(folder: Path, force: bool) -> None:
         raise FileExistsError(f"{folder} exists and is not a folder; expected a folder path")
 
 
+def write_without_mount(recording: Recording, folder: Path) -> Recording:
+    """Write the folder with ``recording.yaml`` lacking ``imu_to_body``; returns the CSVs read
+    back (validated as ``kfusion check`` does) with the in-memory metadata."""
+    write_recording(recording, folder)
+    metadata = {key: value for key, value in info_to_dict(recording.info).items()
+                if key != "imu_to_body"}
+    (folder / META_FILE).write_text(yaml.safe_dump(metadata, sort_keys=False))
+    return Recording(imu=read_imu(folder / IMU_FILE), mocap=read_mocap(folder / MOCAP_FILE),
+                     info=recording.info, source=str(folder))
+
+
 def run(args: argparse.Namespace) -> int:
     folder = Path(args.out)
     check_output_folder(folder, args.force)
     recording = args._convert(args)
-    write_recording(recording, folder)
-    # Read back with the folder reader, so what was written is exactly what `check` accepts.
-    written = read_recording(folder)
+    mount_unknown = args.format == "motive" and args.imu_to_body is None
+    if mount_unknown:
+        written = write_without_mount(recording, folder)
+    else:
+        write_recording(recording, folder)
+        # Read back with the folder reader, so what was written is exactly what `check` accepts.
+        written = read_recording(folder)
     print(f"{args.format}: wrote {folder}")
     print(summarise(written))
+    print(next_step(folder) if mount_unknown else f"next: kfusion check {folder}, then "
+          f"kfusion track {folder} --method kalman --out track.csv")
     return 0

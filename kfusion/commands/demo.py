@@ -14,8 +14,13 @@ import numpy as np
 import pandas as pd
 
 from kfusion.commands.stream import stream_lines
-from kfusion.experiment import ScoredRecording, format_table, run_method, summary_table
-from kfusion.guards import atomic_write
+from kfusion.experiment import (
+    ScoredRecording,
+    format_table,
+    run_method,
+    summary_table,
+    write_table_csv,
+)
 from kfusion.methods import METHODS
 from kfusion.plots import error_by_gap_length_figure, gap_zoom_figure, trajectory_figure
 from kfusion.recording import write_recording
@@ -50,13 +55,12 @@ def run(args: argparse.Namespace) -> int:
     for method_run in runs:
         write_track_csv(method_run.result, out / f"track_{method_run.method}.csv")
     table = summary_table(runs)
-    atomic_write(out / "gap_errors.csv", table.to_csv)
+    write_table_csv(table, out / "gap_errors.csv")
     print()
     print("Gap errors (all gap samples pooled; coverage = fraction inside 3 sigma):")
     print(format_table(table))
     per_gap = pd.concat([method_run.per_gap for method_run in runs], ignore_index=True)
-    atomic_write(out / "per_gap_errors.csv",
-                 lambda temporary: per_gap.to_csv(temporary, index=False))
+    write_table_csv(per_gap, out / "per_gap_errors.csv", index=False)
     results = {method_run.method: method_run.result for method_run in runs}
     first_gap = float(simulation.truth.t[np.argmax(scored.gap_mask)])
     trajectory_figure(simulation.truth.t, simulation.recording.mocap.position, results,

@@ -28,7 +28,6 @@ in the simulator or the baseline is tuned to match the paper.
 from __future__ import annotations
 
 import argparse
-import functools
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -39,7 +38,8 @@ import pandas as pd
 from kfusion.baseline import BaselineParameters, fit_velocity, track_recording
 from kfusion.calibration import calibrate_gain
 from kfusion.conventions import rotation_from_wxyz
-from kfusion.guards import atomic_write, atomic_write_text
+from kfusion.experiment import write_table_csv
+from kfusion.guards import atomic_write_text
 from kfusion.paper import TABLE_1_TYPE_1_MM, TABLE_1_TYPE_2_MM, USE_CASE_MM
 from kfusion.recording import occlusion_runs
 
@@ -336,9 +336,9 @@ def run(args: argparse.Namespace) -> int:
     run_tables = reproduce(args.seeds, args.duration)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    for name, table in (("table1.csv", run_tables.table1), ("use_case.csv", run_tables.use_case),
-                        ("per_gap.csv", run_tables.per_gap)):
-        atomic_write(out / name, functools.partial(table.to_csv, index=False))
+    write_table_csv(run_tables.table1, out / "table1.csv", index=False)
+    write_table_csv(run_tables.use_case, out / "use_case.csv", index=False)
+    write_table_csv(run_tables.per_gap, out / "per_gap.csv", index=False)
     text = report(run_tables, args.seeds, args.duration)
     atomic_write_text(out / "report.md", text)
     print(text)

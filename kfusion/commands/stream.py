@@ -110,6 +110,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="estimator (default: kalman)")
     parser.add_argument("--count", type=int, default=None, metavar="K",
                         help="stop after K lines (default: the whole recording)")
+    parser.add_argument("--start", type=float, default=None, metavar="S",
+                        help="print only from this time on, s (earlier samples are still "
+                        "streamed, so the tracker has its history)")
     parser.add_argument("--health", action="store_true",
                         help="print the tracker's health counters at the end")
     parser.add_argument("--zeros-occluded", action="store_true",
@@ -126,13 +129,16 @@ def run(args: argparse.Namespace) -> int:
     if args.count is not None and args.count < 1:
         raise ValueError(f"--count: expected a positive integer, got {args.count}")
     tracker = Tracker.from_recording_info(recording.info, method=args.method)
-    printed = 0
-    for index, (_, estimate) in enumerate(stream_recording(recording, tracker)):
-        if index % args.every == 0:
+    printed = shown = 0
+    for _, estimate in stream_recording(recording, tracker):
+        if args.start is not None and estimate.t < args.start:
+            continue
+        if shown % args.every == 0:
             print(format_estimate(estimate, args.confidence))
             printed += 1
             if args.count is not None and printed >= args.count:
                 break
+        shown += 1
     if args.health:
         health = tracker.health.as_dict()
         for key, value in health.items():

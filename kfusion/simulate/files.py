@@ -30,36 +30,38 @@ def write_simulation(simulation: Simulation, folder: str | Path) -> Path:
     return folder
 
 
-def read_truth(folder: str | Path) -> Truth:
-    """Read ``truth.csv`` from a simulated recording folder.
+def read_truth(source: str | Path) -> Truth:
+    """Read ``truth.csv``: ``source`` is a simulated recording folder or the CSV itself.
 
     Returns a :class:`Truth` with ``t``, ``position`` and ``occluded``; the other fields are None.
     Raises :class:`~kfusion.recording.RecordingError` if the file is missing or malformed.
     """
-    path = Path(folder) / TRUTH_FILE
+    path = Path(source)
+    path = path / TRUTH_FILE if path.is_dir() else path
+    name = path.name
     if not path.is_file():
-        raise RecordingError(TRUTH_FILE, f"file not found in {path.parent}")
+        raise RecordingError(name, f"file not found in {path.parent}")
     try:
         table = pd.read_csv(path, skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as error:
-        raise RecordingError(TRUTH_FILE, f"cannot be parsed as CSV ({error})") from None
+        raise RecordingError(name, f"cannot be parsed as CSV ({error})") from None
     table.columns = [str(c).strip() for c in table.columns]
     missing = [c for c in TRUTH_COLUMNS if c not in table.columns]
     if missing:
-        raise RecordingError(TRUTH_FILE, f"missing column(s) {missing}; expected "
+        raise RecordingError(name, f"missing column(s) {missing}; expected "
                              f"{list(TRUTH_COLUMNS)}, found {list(table.columns)}",
                              column=missing[0])
     values = table[list(TRUTH_COLUMNS)].apply(pd.to_numeric, errors="coerce").to_numpy(float)
     bad = ~np.isfinite(values)
     if bad.any():
         row, col = np.argwhere(bad)[0]
-        raise RecordingError(TRUTH_FILE, f"expected a finite number, got "
+        raise RecordingError(name, f"expected a finite number, got "
                              f"{table.iat[row, table.columns.get_loc(TRUTH_COLUMNS[col])]!r}",
                              row=int(row) + 1, column=TRUTH_COLUMNS[col])
     flags = values[:, 4]
     not_flag = (flags != 0) & (flags != 1)
     if not_flag.any():
         row = int(np.flatnonzero(not_flag)[0])
-        raise RecordingError(TRUTH_FILE, f"expected 0 or 1, got {flags[row]!r}", row=row + 1,
+        raise RecordingError(name, f"expected 0 or 1, got {flags[row]:g}", row=row + 1,
                              column="occluded")
     return Truth(t=values[:, 0], position=values[:, 1:4], occluded=flags.astype(bool))
