@@ -41,7 +41,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 from tqdm import tqdm
@@ -121,20 +120,20 @@ class ExperimentResult:
     def trajectory_figure(self, name: str | None = None, *, path: str | Path | None = None
                           ) -> Figure:
         """Trajectory with gaps of recording ``name`` (default: the first), like the paper's
-        figures: mocap, each method inside the gaps, truth; axes and window from
-        ``output.plots``."""
-        from kfusion.plots import trajectory_figure
+        figures: mocap, each method inside the gaps, truth, and a zoom on the worst gaps; axes
+        and window length from ``output.plots``, the window where the IMU turns fastest
+        (:func:`kfusion.plots.motion_window`)."""
+        from kfusion.plots import motion_window, trajectory_figure
 
         name = name if name is not None else next(iter(self.recordings))
         scored = self.recordings[name]
         plots = self.config.output.plots
-        t = scored.recording.mocap.t
         window = None
-        if plots.window_s is not None and scored.gap_mask.any():
-            start = float(t[np.argmax(scored.gap_mask)]) - plots.window_s / 3
-            window = (max(start, float(t[0])), max(start, float(t[0])) + plots.window_s)
-        return trajectory_figure(t, scored.recording.mocap.position, self.results_for(name),
-                                 scored.gap_mask, truth=scored.truth_position,
+        if plots.window_s is not None:
+            window = motion_window(scored.recording, scored.gap_mask, plots.window_s)
+        return trajectory_figure(scored.recording.mocap.t, scored.recording.mocap.position,
+                                 self.results_for(name), scored.gap_mask,
+                                 truth=scored.truth_position,
                                  axes=[AXIS_INDEX[axis] for axis in plots.axes], window=window,
                                  title=f"{self.config.name}: {name}", path=path)
 
