@@ -215,14 +215,14 @@ def busiest_window(t: NDArray[np.float64], rate: NDArray[np.float64], window_s: 
     tenth of the window to spare on each side) compete, when any does. Shapes: ``t`` and
     ``rate`` (n,), ``t`` increasing. A recording shorter than the window is shown whole.
 
-    mean over [t_i, t_i + w] = (C[j] - C[i]) / (j - i), C the cumulative sum of rate, j the
-    first sample after t_i + w.
+    mean over [t_i, t_i + w) = (C[j] - C[i]) / (j - i), C the cumulative sum of rate
+    (C[0] = 0), j the first sample at or after t_i + w.
     """
     t, rate = np.asarray(t, dtype=float), np.nan_to_num(np.asarray(rate, dtype=float))
     if len(t) == 0 or t[-1] - t[0] <= window_s:
         return (float(t[0]), float(t[0]) + window_s) if len(t) else (0.0, window_s)
     starts = np.arange(len(t))
-    stops = np.searchsorted(t, t + window_s, side="right")
+    stops = np.searchsorted(t, t + window_s, side="left")
     cumulative = np.concatenate([[0.0], np.cumsum(rate)])
     means = (cumulative[stops] - cumulative[starts]) / (stops - starts)
     valid = t + window_s <= t[-1]
@@ -603,6 +603,8 @@ def _draw_lines_panel(ax: Axes, frame: pd.DataFrame, *, x: str, value: str, hue:
         where = np.array([positions[key] for key in statistics.index], dtype=float) + shift
         style = method_style(str(name), index)
         mean = statistics["mean"].to_numpy(dtype=float)
+        if not np.isfinite(mean).any():  # e.g. coverage of a method without a bound
+            continue
         lower, upper = clipped_band(mean, statistics["std"].fillna(0.0).to_numpy(dtype=float),
                                     fraction=fraction, log=log)
         ax.fill_between(where, lower, upper, color=style["color"], alpha=0.15, lw=0)
