@@ -184,7 +184,7 @@ def legend_outside(figure: Figure, handles: Sequence[Any], labels: Sequence[str]
         figure.legend(handles, labels, loc="outside upper center", ncol=min(len(labels), 6),
                       fontsize=8, title=title, frameon=False)
     else:
-        figure.legend(handles, labels, loc="outside right upper", fontsize=8, title=title,
+        figure.legend(handles, labels, loc="outside right center", fontsize=8, title=title,
                       title_fontsize=8, frameon=False)
 
 
@@ -543,6 +543,8 @@ def heatmap_figure(table: pd.DataFrame, *, rows: str, columns: str, value: str,
     plot_axes[0, 0].set_ylabel(quantity_label(rows))
     if image is not None:
         bar = figure.colorbar(image, ax=list(plot_axes[0]), label=quantity_label(value))
+        bar.ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        bar.ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
         if value.startswith("coverage"):
             bar.ax.axhline(NOMINAL_COVERAGE_3SIGMA, color="k", lw=1.0)
     if title:

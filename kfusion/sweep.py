@@ -536,7 +536,7 @@ def draw_heatmaps(config: SweepConfig, results: pd.DataFrame, directory: Path) -
     """The config's heat maps as PNGs in ``directory``."""
     import matplotlib.pyplot as plt
 
-    from kfusion.plots import heatmap_figure
+    from kfusion.plots import heatmap_figure, quantity_label
 
     written = []
     for heatmap in config.heatmaps:
@@ -548,7 +548,8 @@ def draw_heatmaps(config: SweepConfig, results: pd.DataFrame, directory: Path) -
         path = directory / f"heatmap_{_file_label('_'.join(parts))}.png"
         figure = heatmap_figure(results, rows=heatmap.rows, columns=heatmap.columns,
                                 value=heatmap.value, facet=heatmap.facet,
-                                title=f"{config.name}: {heatmap.value}, mean over seeds",
+                                title=f"{config.name}: {quantity_label(heatmap.value)}, "
+                                      "mean over seeds",
                                 path=path)
         plt.close(figure)
         written.append(path)
@@ -563,7 +564,8 @@ def run_sweep(config: SweepConfig, out: str | Path | None = None, *, workers: in
 
     Args:
         config: the validated sweep.
-        out: output folder; None: a new temporary folder (for notebooks).
+        out: output folder; None: a new temporary folder, left in place (notebooks use
+            :func:`temporary_sweep`, which removes it).
         workers: local processes (default: CPU count); ignored with ``scheduler``.
         scheduler: Dask scheduler address; runs on that cluster instead of local processes.
         scheduler_timeout_s: how long to try connecting to the scheduler, s.
@@ -609,6 +611,15 @@ def run_sweep(config: SweepConfig, out: str | Path | None = None, *, workers: in
     figures = draw_heatmaps(config, results, directory)
     return SweepResult(directory=directory, results=results, summary=summary, ran=ran,
                        skipped=skipped, failed=failed, figures=figures)
+
+
+@contextlib.contextmanager
+def temporary_sweep(config: SweepConfig, **options: Any) -> Generator[SweepResult, None, None]:
+    """:func:`run_sweep` into a new temporary folder that is removed when the ``with`` block
+    ends, so notebooks leave nothing behind in the temporary directory; ``options`` go to
+    :func:`run_sweep`. Read what you need (``load_results``) inside the block."""
+    with tempfile.TemporaryDirectory(prefix="kfusion-sweep-") as folder:
+        yield run_sweep(config, folder, **options)
 
 
 def load_results(directory: str | Path) -> pd.DataFrame:
