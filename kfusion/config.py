@@ -355,7 +355,8 @@ class PlotsConfig(_Strict):
     axes: list[Literal["x", "y", "z"]] = Field(default=["x", "y", "z"], min_length=1,
                                                description="axes drawn in the trajectory figure")
     window_s: float | None = Field(default=8.0, gt=0, description="seconds of trajectory shown, "
-                                   "starting a third of it before the first gap (null: all)")
+                                   "where the IMU turns fastest among windows holding a gap "
+                                   "(null: all)")
     error_by_gap: bool = Field(default=True, description="per-gap error against gap length")
     metric: Literal["max_mm", "rms_mm", "mean_mm"] = Field(
         default="max_mm", description="per-gap metric of the error-by-gap figure")

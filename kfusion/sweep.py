@@ -41,7 +41,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 from tqdm import tqdm
@@ -128,20 +127,20 @@ class ExperimentResult:
     def trajectory_figure(self, name: str | None = None, *, path: str | Path | None = None
                           ) -> Figure:
         """Trajectory with gaps of recording ``name`` (default: the first), like the paper's
-        figures: mocap, each method inside the gaps, truth; axes and window from
-        ``output.plots``."""
-        from kfusion.plots import trajectory_figure
+        figures: mocap, each method inside the gaps, truth, and a zoom on the worst gaps; axes
+        and window length from ``output.plots``, the window where the IMU turns fastest
+        (:func:`kfusion.plots.motion_window`)."""
+        from kfusion.plots import motion_window, trajectory_figure
 
         name = name if name is not None else next(iter(self.recordings))
         scored = self.recordings[name]
         plots = self.config.output.plots
-        t = scored.recording.mocap.t
         window = None
-        if plots.window_s is not None and scored.gap_mask.any():
-            start = float(t[np.argmax(scored.gap_mask)]) - plots.window_s / 3
-            window = (max(start, float(t[0])), max(start, float(t[0])) + plots.window_s)
-        return trajectory_figure(t, scored.recording.mocap.position, self.results_for(name),
-                                 scored.gap_mask, truth=scored.truth_position,
+        if plots.window_s is not None:
+            window = motion_window(scored.recording, scored.gap_mask, plots.window_s)
+        return trajectory_figure(scored.recording.mocap.t, scored.recording.mocap.position,
+                                 self.results_for(name), scored.gap_mask,
+                                 truth=scored.truth_position,
                                  axes=[AXIS_INDEX[axis] for axis in plots.axes], window=window,
                                  title=f"{self.config.name}: {name}", path=path)
 
@@ -542,7 +541,7 @@ def draw_heatmaps(config: SweepConfig, results: pd.DataFrame, directory: Path) -
     """The config's heat maps as PNGs in ``directory``."""
     import matplotlib.pyplot as plt
 
-    from kfusion.plots import heatmap_figure
+    from kfusion.plots import heatmap_figure, quantity_label
 
     written = []
     for heatmap in config.heatmaps:
@@ -554,7 +553,8 @@ def draw_heatmaps(config: SweepConfig, results: pd.DataFrame, directory: Path) -
         path = directory / f"heatmap_{_file_label('_'.join(parts))}.png"
         figure = heatmap_figure(results, rows=heatmap.rows, columns=heatmap.columns,
                                 value=heatmap.value, facet=heatmap.facet,
-                                title=f"{config.name}: {heatmap.value}, mean over seeds",
+                                title=f"{config.name}: {quantity_label(heatmap.value)}, "
+                                      "mean over seeds",
                                 path=path)
         plt.close(figure)
         written.append(path)
@@ -569,7 +569,8 @@ def run_sweep(config: SweepConfig, out: str | Path | None = None, *, workers: in
 
     Args:
         config: the validated sweep.
-        out: output folder; None: a new temporary folder (for notebooks).
+        out: output folder; None: a new temporary folder, left in place (notebooks use
+            :func:`temporary_sweep`, which removes it).
         workers: local processes (default: CPU count); ignored with ``scheduler``.
         scheduler: Dask scheduler address; runs on that cluster instead of local processes.
         scheduler_timeout_s: how long to try connecting to the scheduler, s.
@@ -616,6 +617,15 @@ def run_sweep(config: SweepConfig, out: str | Path | None = None, *, workers: in
     figures = draw_heatmaps(config, results, directory)
     return SweepResult(directory=directory, results=results, summary=summary, ran=ran,
                        skipped=skipped, failed=failed, figures=figures)
+
+
+@contextlib.contextmanager
+def temporary_sweep(config: SweepConfig, **options: Any) -> Generator[SweepResult, None, None]:
+    """:func:`run_sweep` into a new temporary folder that is removed when the ``with`` block
+    ends, so notebooks leave nothing behind in the temporary directory; ``options`` go to
+    :func:`run_sweep`. Read what you need (``load_results``) inside the block."""
+    with tempfile.TemporaryDirectory(prefix="kfusion-sweep-") as folder:
+        yield run_sweep(config, folder, **options)
 
 
 def load_results(directory: str | Path) -> pd.DataFrame:

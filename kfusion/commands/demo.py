@@ -22,7 +22,12 @@ from kfusion.experiment import (
     write_table_csv,
 )
 from kfusion.methods import METHODS
-from kfusion.plots import error_by_gap_length_figure, gap_zoom_figure, trajectory_figure
+from kfusion.plots import (
+    error_by_gap_length_figure,
+    gap_zoom_figure,
+    motion_window,
+    trajectory_figure,
+)
 from kfusion.recording import write_recording
 from kfusion.track import write_track_csv
 
@@ -65,12 +70,12 @@ def run(args: argparse.Namespace) -> int:
     first_gap = float(simulation.truth.t[np.argmax(scored.gap_mask)])
     trajectory_figure(simulation.truth.t, simulation.recording.mocap.position, results,
                       scored.gap_mask, truth=simulation.truth.position, axes=(1,),
-                      window=(first_gap - 3.0, first_gap + 5.0),
-                      title="arm lift, MPU9255: estimates inside gaps",
+                      window=motion_window(simulation.recording, scored.gap_mask, 8.0),
+                      title="arm lift, MPU9255: estimates inside gaps (below: the worst gaps)",
                       path=out / "arm_lift_trajectory.png")
     gap_zoom_figure(simulation.truth.t, simulation.recording.mocap.position, results,
                     scored.gap_mask, truth=simulation.truth.position, axis=1,
-                    title="error along y inside the first gaps (band: 3 sigma)",
+                    title="error along y inside the six worst gaps (band: 3 sigma)",
                     path=out / "gap_errors_zoom.png")
     error_by_gap_length_figure(per_gap, title="max error per gap", path=out / "error_by_gap.png")
     print()
