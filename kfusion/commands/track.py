@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from kfusion.calibration.diagnosis import diagnose
 from kfusion.conventions import STATUSES
 from kfusion.methods import METHODS, track_recording
 from kfusion.recording import read_recording
@@ -40,10 +41,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "e.g. --set max_bridge_s=0.5")
     parser.add_argument("--zeros-occluded", action="store_true",
                         help="read a mocap position of exactly (0, 0, 0) as occluded")
+    parser.add_argument("--force", action="store_true",
+                        help="track even when the recording fails kfusion check's consistency "
+                        "tests (clock, mount, gravity)")
 
 
 def run(args: argparse.Namespace) -> int:
     recording = read_recording(args.folder, zero_position_means_occluded=args.zeros_occluded)
+    diagnosis = diagnose(recording)
+    if not diagnosis.ok and not args.force:
+        raise ValueError(f"{args.folder}: {diagnosis.problems[0]} (or pass --force)")
     result = track_recording(recording, args.method, **parse_options(args.options))
     path = write_track_csv(result, args.out)
     counts = {status: int(np.sum(result.status == status)) for status in STATUSES}
