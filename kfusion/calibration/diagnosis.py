@@ -43,8 +43,18 @@ CLOCK_TOLERANCE_S: Final = 0.010
 """s: a clock offset beyond this is reported (1 m/s of arm speed turns 10 ms into 10 mm)."""
 MOUNT_TOLERANCE_DEG: Final = 5.0
 """deg: a mount error beyond this is reported (5 deg of tilt leaks 0.85 m/s^2 of gravity)."""
-MIN_CORRELATION: Final = 0.5
-"""Peak correlation below which the clock test is not decided."""
+MIN_CORRELATION: Final = 0.8
+"""Peak correlation below which the clock test is not decided (2 s of a still IMU's noise
+correlate up to about 0.55 somewhere)."""
+MIN_PEAK_MARGIN: Final = 0.15
+"""The peak must beat the best correlation more than 0.25 s away by this much (a unique
+match), unless it reaches :data:`CLEAR_CORRELATION` (periodic motion repeats its pattern)."""
+CLEAR_CORRELATION: Final = 0.95
+MAX_RATE_MISFIT: Final = 0.3
+"""Relative RMS misfit of the rates under the best mount above which the mocap orientations
+do not match the gyroscope at all (the quaternion order test)."""
+MIN_GRAVITY_SECONDS: Final = 5.0
+"""s: visible mocap needed (after trimming run ends) to test gravity."""
 UNITS_RATIO: Final = (300.0, 3000.0)
 """A stream whose time span is this many times the other's was written in ms."""
 CALIBRATE_FIX: Final = "run kfusion calibrate DIR --out DIR/recording.yaml"
@@ -94,6 +104,14 @@ def overlap_seconds(recording: Recording) -> float:
     return float(min(recording.imu.t[-1], visible[-1]) - max(recording.imu.t[0], visible[0]))
 
 
+def relative_rate_misfit(rate_body: np.ndarray, rate_imu: np.ndarray) -> float:
+    """``RMS|w_body - R w_imu| / RMS|w_body|`` under the Kabsch mount R (0: a perfect match)."""
+    R = mount_from_rates(rate_body, rate_imu)
+    misfit = rate_body - rate_imu @ R.T
+    return float(np.sqrt(np.mean(np.sum(misfit**2, axis=1)) / np.mean(np.sum(rate_body**2,
+                                                                            axis=1))))
+
+
 def _reordered(recording: Recording) -> Recording:
     """The recording with the mocap quaternion columns read as x, y, z, w."""
     mocap = recording.mocap
@@ -131,9 +149,11 @@ def diagnose(recording: Recording) -> Diagnosis:
     except ValueError:
         pass
     offset = correlation.offset
-    if correlation.peak < MIN_CORRELATION:
+    unique = correlation.peak >= CLEAR_CORRELATION or (
+        correlation.peak - correlation.runner_up >= MIN_PEAK_MARGIN)
+    if correlation.peak < MIN_CORRELATION or not unique:
         notes.append(f"clock not checked: too little rotation (correlation peak "
-                     f"{correlation.peak:.2f})")
+                     f"{correlation.peak:.2f}, next best {correlation.runner_up:.2f})")
         offset = 0.0
     elif abs(offset) > CLOCK_TOLERANCE_S:
         side = "behind" if offset > 0 else "ahead of"
@@ -146,8 +166,19 @@ def diagnose(recording: Recording) -> Diagnosis:
     if principal[0] < MIN_ROTATION_RATE or principal[1] < MIN_SECOND_AXIS * principal[0]:
         notes.append("mount not checked: the limb rotates about one axis only or too little")
     else:
-        best = Rotation.from_matrix(mount_from_rates(pairs.mocap.rate,
-                                                     pairs.gyroscope(offset, 0.0)))
+        gyroscope = pairs.gyroscope(offset, 0.0)
+        best = Rotation.from_matrix(mount_from_rates(pairs.mocap.rate, gyroscope))
+        misfit = relative_rate_misfit(pairs.mocap.rate, gyroscope)
+        if misfit > MAX_RATE_MISFIT:
+            swapped_pairs = rate_pairs(_reordered(recording), offset)
+            swapped = relative_rate_misfit(swapped_pairs.mocap.rate,
+                                           swapped_pairs.gyroscope(offset, 0.0))
+            if swapped < 0.5 * misfit:
+                return Diagnosis([f"quaternion columns look like x, y, z, w: no mount matches "
+                                  f"the gyroscope to the mocap rates (misfit {misfit:.0%}), but "
+                                  f"with qw read from the last column one does ({swapped:.0%}):"
+                                  " write mocap.csv's quaternion as qw, qx, qy, qz"],
+                                 correlation=correlation)
         angle = float(np.degrees((best.inv() * rotation_from_wxyz(
             recording.info.imu_to_body)).magnitude()))
         if angle > MOUNT_TOLERANCE_DEG:
@@ -160,6 +191,11 @@ def diagnose(recording: Recording) -> Diagnosis:
         force = fit_specific_force(recording, offset, 0.0, recording.info.imu_to_body)
     except ValueError as error:
         notes.append(f"gravity not checked: {error}")
+        return Diagnosis(notes=notes, correlation=correlation)
+    seconds = force.samples * float(np.median(np.diff(recording.mocap.t)))
+    if seconds < MIN_GRAVITY_SECONDS:
+        notes.append(f"gravity not checked: {seconds:.1f} s of usable visible mocap (expected "
+                     f"at least {MIN_GRAVITY_SECONDS:g} s)")
         return Diagnosis(notes=notes, correlation=correlation)
     given, fitted = recording.info.gravity, force.gravity
     angle = angle_between_deg(given, fitted)

@@ -141,7 +141,8 @@ def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
 
 def solve_specific_force(y: Array, design: Array, *, fit_bias: bool = True,
                          correlation: float = 1.0) -> tuple[Array, Array, Array]:
-    """Least squares of ``y = A x``; returns (x (9,), 1-sigma (9,), residual (k, 3)).
+    """Least squares of ``y = A x``; returns (x (9,), 1-sigma (9,), residual (k', 3) of the
+    inliers).
 
     Without ``fit_bias`` the bias columns are dropped (x[6:] = 0, std NaN). ``correlation``
     multiplies the covariance: filtered samples are not independent (about
@@ -150,6 +151,12 @@ def solve_specific_force(y: Array, design: Array, *, fit_bias: bool = True,
     columns = 9 if fit_bias else 6
     A = design[:, :, :columns].reshape(-1, columns)
     b = y.reshape(-1)
+    solution, *_ = np.linalg.lstsq(A, b, rcond=None)
+    # one pass of outlier rejection: samples whose misfit exceeds 5 times the median (a mocap
+    # glitch or marker swap, spread by the filter) are dropped and the fit repeated
+    misfit = np.linalg.norm((b - A @ solution).reshape(-1, 3), axis=1)
+    inlier = np.repeat(misfit <= 5.0 * np.median(misfit), 3)
+    A, b = A[inlier], b[inlier]
     solution, *_ = np.linalg.lstsq(A, b, rcond=None)
     residual = b - A @ solution
     sigma2 = float(residual @ residual) / max(len(b) - columns, 1)
