@@ -4,9 +4,9 @@ Density convention (as the profiles and the simulator): white noise of density `
 (unit/sqrt(Hz)) sampled every dt has per-sample std ``sigma = N / sqrt(dt)``, so
 ``N = sigma sqrt(dt)``.
 
-* Still stretches (gyroscope magnitude below a threshold for at least a second): sigma is the
-  std of the samples about their mean; the gyroscope's mean is its bias there.
-* Without any: third differences remove a local quadratic of the motion,
+* Still stretches (gyroscope magnitude below a threshold for at least a second) are used when
+  there are any (the gyroscope's mean there is its bias), else the whole recording;
+* either way, third differences remove a local quadratic of the (slow) motion,
   ``d3_k = x_k+3 - 3 x_k+2 + 3 x_k+1 - x_k``, and for white noise
   ``var(d3) = 20 sigma^2`` (1 + 9 + 9 + 1). A robust std (1.4826 MAD) keeps the motion's rare
   jerks out.
@@ -82,10 +82,11 @@ def estimate_noise(imu: ImuSamples) -> NoiseEstimate:
     dt = float(np.median(np.diff(imu.t)))
     spans = still_stretches(imu)
     if spans:
-        values = np.vstack([np.hstack([imu.accelerometer[a:b] - imu.accelerometer[a:b].mean(0),
-                                       imu.gyroscope[a:b] - imu.gyroscope[a:b].mean(0)])
-                            for a, b in spans])
-        sigma = np.std(values, axis=0)
+        # third differences inside each stretch: the slow sway of a limb held "still" is
+        # removed too
+        sigma = np.sqrt(np.average(
+            [third_difference_std(np.hstack([imu.accelerometer[a:b], imu.gyroscope[a:b]]))**2
+             for a, b in spans], axis=0, weights=[b - a for a, b in spans]))
         bias = np.mean(np.vstack([imu.gyroscope[a:b] for a, b in spans]), axis=0)
         source, seconds = "still", float(sum(imu.t[b - 1] - imu.t[a] for a, b in spans))
     else:
