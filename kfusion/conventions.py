@@ -20,7 +20,9 @@ Accelerometer
     (``g_global = [0, -9.81, 0]``); BROAD's is z-up (``[0, 0, -9.81]``).
 
 Time
-    Float seconds on one clock shared by both sensors.
+    Float seconds. The mocap clock is the reference. An IMU on its own clock maps onto it as
+    ``t_mocap = (1 + imu_clock_drift_ppm * 1e-6) * t_imu + imu_time_offset``
+    (:func:`imu_time_to_mocap`, the one place this model is written); both default to 0.
 
 Track output status
     ``tracked``: the mocap fix at this row was used; ``bridged``: estimate inside a gap;
@@ -64,6 +66,19 @@ drifts by metres within tens of seconds, and kfusion targets 0.1-1 s occlusions;
 
 QUATERNION_NORM_TOLERANCE: Final = 1e-3
 """Largest accepted | |q| - 1 | for a quaternion read from a file."""
+
+
+def imu_time_to_mocap(t_imu: ArrayLike, imu_time_offset: float = 0.0,
+                      imu_clock_drift_ppm: float = 0.0) -> NDArray[np.float64]:
+    """IMU timestamps (s, IMU clock) on the mocap clock (s), shape as given:
+
+        t_mocap = (1 + imu_clock_drift_ppm * 1e-6) * t_imu + imu_time_offset
+
+    A positive offset means the IMU clock is behind the mocap's; a positive drift that it runs
+    slow (its second is longer than the mocap's by ``drift`` ppm).
+    """
+    scale = 1.0 + float(imu_clock_drift_ppm) * 1e-6
+    return np.asarray(scale * np.asarray(t_imu, dtype=float) + float(imu_time_offset))
 
 
 def as_wxyz(quaternion: ArrayLike, *, name: str = "quaternion") -> NDArray[np.float64]:

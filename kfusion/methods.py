@@ -31,5 +31,11 @@ def method_function(name: str) -> Callable[..., TrackResult]:
 
 
 def track_recording(recording: Recording, method: str, **options: Any) -> TrackResult:
-    """Run method ``method`` over ``recording``; ``options`` go to the method's parameters."""
-    return method_function(method)(recording, **options)
+    """Run method ``method`` over ``recording``; ``options`` go to the method's parameters.
+
+    The IMU clock model of ``recording.info`` (``imu_time_offset``, ``imu_clock_drift_ppm``) is
+    applied here, once, for every method (:func:`kfusion.calibration.on_mocap_clock`).
+    """
+    from kfusion.calibration.clock import on_mocap_clock
+
+    return method_function(method)(on_mocap_clock(recording), **options)

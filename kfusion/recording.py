@@ -6,8 +6,11 @@ A recording is a folder holding
 * ``mocap.csv``: ``t, x, y, z, qw, qx, qy, qz`` (s, m in the global frame, unit quaternion
   body -> global). An occluded frame has every cell but ``t`` empty (or NaN);
 * ``recording.yaml``: ``imu_to_body: [w, x, y, z]`` (IMU -> body rotation),
-  ``gravity: [gx, gy, gz]`` (m/s^2, global frame), optional ``name``, ``imu`` (profile name)
-  and ``lever_arm`` (m, body frame).
+  ``gravity: [gx, gy, gz]`` (m/s^2, global frame), optional ``name``, ``imu`` (profile name),
+  ``lever_arm`` (m, body frame), ``imu_time_offset`` (s) and ``imu_clock_drift_ppm`` (the IMU
+  clock: ``t_mocap = (1 + drift * 1e-6) t_imu + offset``, see
+  :func:`kfusion.conventions.imu_time_to_mocap`; both default to 0) and ``imu_noise`` (measured
+  noise densities that override the IMU profile's, see :class:`ImuNoise`).
 
 Other files in the folder (``truth.csv`` from the simulator, say) are ignored.
 
@@ -181,17 +184,49 @@ class MocapFrames:
                             | np.isnan(self.quaternion).any(axis=1)))
 
 
+IMU_NOISE_KEYS = ("accelerometer_noise_density", "gyroscope_noise_density")
+"""Keys of ``recording.yaml``'s ``imu_noise`` section."""
+MAX_CLOCK_DRIFT_PPM = 10_000.0
+"""ppm: a larger IMU clock drift (1 %) is a unit or clock mistake, not a crystal's drift."""
+
+
+@dataclass(frozen=True)
+class ImuNoise:
+    """Measured IMU noise (``recording.yaml``'s ``imu_noise`` section), overriding the profile.
+
+    This is the documented way to describe your own IMU: name the closest profile in ``imu``
+    and give the densities you measured (``kfusion calibrate`` writes them). None keeps the
+    profile's figure.
+
+    Attributes:
+        accelerometer_noise_density: white-noise density, m/s^2/sqrt(Hz), or None.
+        gyroscope_noise_density: white-noise density, rad/s/sqrt(Hz), or None.
+    """
+
+    accelerometer_noise_density: float | None = None
+    gyroscope_noise_density: float | None = None
+
+    def overrides(self) -> dict[str, float]:
+        """The densities that are set, as :class:`kfusion.profiles.ImuProfile` field names."""
+        return {key: float(value) for key in IMU_NOISE_KEYS
+                if (value := getattr(self, key)) is not None}
+
+
 @dataclass(frozen=True)
 class RecordingInfo:
     """Contents of ``recording.yaml``.
 
     Attributes:
-        imu_to_body: (4,) rotation IMU -> body, [w, x, y, z].
-        gravity: (3,) gravity in the global frame, m/s^2.
+        imu_to_body: (4,) rotation IMU -> body, [w, x, y, z]; all NaN when not given (only
+            with ``parse_info(..., require_mount=False)``, as ``kfusion calibrate`` reads).
+        gravity: (3,) gravity in the global frame, m/s^2; all NaN when not given (idem).
         name: optional recording name.
         imu: optional IMU profile name (see :mod:`kfusion.profiles`).
         lever_arm: optional (3,) IMU position in the body frame relative to the rigid-body
             origin, m.
+        imu_time_offset: s, and imu_clock_drift_ppm: the IMU clock model
+            (:func:`kfusion.conventions.imu_time_to_mocap`).
+        imu_noise: measured noise overriding the profile's, or None.
     """
 
     imu_to_body: NDArray[np.float64]
@@ -199,6 +234,9 @@ class RecordingInfo:
     name: str | None = None
     imu: str | None = None
     lever_arm: NDArray[np.float64] | None = None
+    imu_time_offset: float = 0.0
+    imu_clock_drift_ppm: float = 0.0
+    imu_noise: ImuNoise | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "imu_to_body", _frozen(self.imu_to_body))
@@ -446,27 +484,78 @@ def _vector(file: str, data: dict, key: str, length: int, required: bool = True
     return array
 
 
-KNOWN_INFO_KEYS = ("imu_to_body", "gravity", "name", "imu", "lever_arm")
+KNOWN_INFO_KEYS = ("imu_to_body", "gravity", "name", "imu", "lever_arm", "imu_time_offset",
+                   "imu_clock_drift_ppm", "imu_noise")
+CALIBRATE_HINT = "estimate it with kfusion calibrate DIR --out DIR/recording.yaml"
 
 
-def parse_info(data: object, file: str = META_FILE) -> RecordingInfo:
-    """Validate the mapping loaded from ``recording.yaml`` and build a :class:`RecordingInfo`."""
+def _number(file: str, data: dict, key: str, unit: str, limit: float, *,
+            positive: bool = False) -> float | None:
+    """The optional finite number at ``key`` (None when absent), within +-limit (or (0, limit]
+    with ``positive``); never a bool. The message shows a short form of a bad value."""
+    if key not in data or data[key] is None:
+        return None
+    value = data[key]
+    shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise RecordingError(file, f"expected a number ({unit}), got {shown}", key=key)
+    number = float(value) if abs(value) < 1e300 else float("inf")
+    if not np.isfinite(number) or abs(number) > limit or (positive and number <= 0):
+        expected = f"a positive number up to {limit:g}" if positive else \
+            f"a finite number within +-{limit:g}"
+        raise RecordingError(file, f"expected {expected} ({unit}), got {shown}", key=key)
+    return number
+
+
+def _imu_noise(file: str, data: dict) -> ImuNoise | None:
+    section = data.get("imu_noise")
+    if section is None:
+        return None
+    if not isinstance(section, dict):
+        raise RecordingError(file, f"expected a mapping with some of {list(IMU_NOISE_KEYS)}, "
+                             f"got {type(section).__name__}", key="imu_noise")
+    unknown = sorted(map(str, set(section) - set(IMU_NOISE_KEYS)))
+    if unknown:
+        raise RecordingError(file, f"unknown key; expected some of {list(IMU_NOISE_KEYS)}",
+                             key=f"imu_noise.{unknown[0]}")
+    densities = {}
+    for key, unit in zip(IMU_NOISE_KEYS, ("m/s^2/sqrt(Hz)", "rad/s/sqrt(Hz)"), strict=True):
+        try:
+            densities[key] = _number(file, section, key, unit, 10.0, positive=True)
+        except RecordingError as error:
+            raise RecordingError(file, error.reason, key=f"imu_noise.{key}") from None
+    return ImuNoise(**densities)
+
+
+def parse_info(data: object, file: str = META_FILE, *, require_mount: bool = True
+               ) -> RecordingInfo:
+    """Validate the mapping loaded from ``recording.yaml`` and build a :class:`RecordingInfo`.
+
+    With ``require_mount=False`` (``kfusion calibrate``, which estimates them), a missing
+    ``imu_to_body`` or ``gravity`` is read as all NaN instead of an error; given values are
+    still validated.
+    """
     if not isinstance(data, dict):
         raise RecordingError(file, f"expected a mapping with keys {list(KNOWN_INFO_KEYS)}, "
                              f"got {type(data).__name__}")
-    unknown = sorted(str(key) for key in set(data) - set(KNOWN_INFO_KEYS))
+    unknown = sorted(map(str, set(data) - set(KNOWN_INFO_KEYS)))
     if unknown:
         raise RecordingError(file, f"unknown key; expected only {list(KNOWN_INFO_KEYS)}",
                              key=short_repr(unknown[0]).strip("'"))
-    imu_to_body = _vector(file, data, "imu_to_body", 4)
-    assert imu_to_body is not None
-    if abs(np.linalg.norm(imu_to_body) - 1.0) > QUATERNION_NORM_TOLERANCE:
+    if require_mount and data.get("imu_to_body") is None:
+        raise RecordingError(file, f"missing; expected [w, x, y, z], the IMU -> body rotation: "
+                             f"{CALIBRATE_HINT}", key="imu_to_body")
+    imu_to_body = _vector(file, data, "imu_to_body", 4, required=False)
+    if imu_to_body is None:
+        imu_to_body = np.full(4, np.nan)
+    elif abs(np.linalg.norm(imu_to_body) - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise RecordingError(file, f"quaternion norm is {np.linalg.norm(imu_to_body):.6g}; "
                              "expected a unit quaternion [w, x, y, z]", key="imu_to_body")
-    gravity = _vector(file, data, "gravity", 3)
-    assert gravity is not None
+    gravity = _vector(file, data, "gravity", 3, required=require_mount)
+    if gravity is None:
+        gravity = np.full(3, np.nan)
     low, high = GRAVITY_MAGNITUDE_RANGE
-    if not low <= np.linalg.norm(gravity) <= high:
+    if np.isfinite(gravity).all() and not low <= np.linalg.norm(gravity) <= high:
         raise RecordingError(file, f"gravity length is {np.linalg.norm(gravity):.4g} m/s^2; "
                              f"expected about 9.81 (between {low} and {high})", key="gravity")
     lever_arm = _vector(file, data, "lever_arm", 3, required=False)
@@ -477,12 +566,17 @@ def parse_info(data: object, file: str = META_FILE) -> RecordingInfo:
         if key in data and data[key] is not None and not isinstance(data[key], str):
             raise RecordingError(file, f"expected a string, got {short_repr(data[key])}",
                                  key=key)
+    offset = _number(file, data, "imu_time_offset", "s", 1e9)
+    drift = _number(file, data, "imu_clock_drift_ppm", "ppm", MAX_CLOCK_DRIFT_PPM)
     return RecordingInfo(imu_to_body=imu_to_body, gravity=gravity, name=data.get("name"),
-                         imu=data.get("imu"), lever_arm=lever_arm)
+                         imu=data.get("imu"), lever_arm=lever_arm,
+                         imu_time_offset=offset or 0.0, imu_clock_drift_ppm=drift or 0.0,
+                         imu_noise=_imu_noise(file, data))
 
 
-def read_info(path: str | Path) -> RecordingInfo:
-    """Read and validate ``recording.yaml``. Raises :class:`RecordingError`."""
+def read_info(path: str | Path, *, require_mount: bool = True) -> RecordingInfo:
+    """Read and validate ``recording.yaml`` (``require_mount``: see :func:`parse_info`).
+    Raises :class:`RecordingError`."""
     path = Path(path)
     if not path.is_file():
         raise RecordingError(path.name, f"file not found in {path.parent}")
@@ -491,7 +585,7 @@ def read_info(path: str | Path) -> RecordingInfo:
     except YamlError as error:
         reason = f"not valid YAML ({error.reason})" if error.syntax else error.reason
         raise RecordingError(path.name, reason) from None
-    info = parse_info(data, path.name)
+    info = parse_info(data, path.name, require_mount=require_mount)
     check_imu_profile(info, path.name)
     return info
 
@@ -547,6 +641,12 @@ def info_to_dict(info: RecordingInfo) -> dict:
         data["imu"] = info.imu
     if info.lever_arm is not None:
         data["lever_arm"] = [float(v) for v in info.lever_arm]
+    if info.imu_time_offset != 0.0:
+        data["imu_time_offset"] = float(info.imu_time_offset)
+    if info.imu_clock_drift_ppm != 0.0:
+        data["imu_clock_drift_ppm"] = float(info.imu_clock_drift_ppm)
+    if info.imu_noise is not None and info.imu_noise.overrides():
+        data["imu_noise"] = info.imu_noise.overrides()
     return data
 
 

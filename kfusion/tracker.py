@@ -85,11 +85,12 @@ from kfusion.conventions import (
     LOST,
     QUATERNION_NORM_TOLERANCE,
     TRACKED,
+    imu_time_to_mocap,
 )
 from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, short_repr
 from kfusion.kalman.filter import ACCEPTED, GATED, OCCLUDED, REACQUIRED
 from kfusion.profiles import ImuProfile, imu_profile
-from kfusion.recording import RecordingInfo
+from kfusion.recording import MAX_CLOCK_DRIFT_PPM, RecordingInfo
 
 # ---------------------------------------------------------------------------------------------
 # Reasons (the strings of PushOutcome.reason and the keys of the health counters)
@@ -625,6 +626,8 @@ class Tracker:
             their fields (None: defaults from ``imu``).
         lever_arm: (3,) IMU position in the body frame, m (Kalman only), or None.
         options: :class:`TrackerOptions` or a mapping of its fields.
+        imu_time_offset: s, and imu_clock_drift_ppm: the IMU's clock; :meth:`push_imu` maps
+            its ``t`` onto the mocap clock with :func:`kfusion.conventions.imu_time_to_mocap`.
 
     Raises:
         ValueError: for any malformed argument, naming what was expected and what was given.
@@ -640,7 +643,14 @@ class Tracker:
         params: Any = None,
         lever_arm: ArrayLike | None = None,
         options: TrackerOptions | Mapping[str, Any] | None = None,
+        imu_time_offset: float = 0.0,
+        imu_clock_drift_ppm: float = 0.0,
     ) -> None:
+        clock = (_time("Tracker", imu_time_offset), _time("Tracker", imu_clock_drift_ppm))
+        if not (math.isfinite(clock[0]) and abs(clock[1]) <= MAX_CLOCK_DRIFT_PPM):
+            raise ValueError(f"Tracker: expected a finite imu_time_offset (s) and "
+                             f"|imu_clock_drift_ppm| <= {MAX_CLOCK_DRIFT_PPM:g}, got {clock}")
+        self.imu_clock = clock
         q_body_imu = _vector("Tracker", "imu_to_body", imu_to_body, 4, "[w, x, y, z]")
         norm = float(np.linalg.norm(q_body_imu))
         if not np.isfinite(q_body_imu).all() or abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
@@ -692,12 +702,17 @@ class Tracker:
 
     @classmethod
     def from_recording_info(cls, info: RecordingInfo, **kwargs: Any) -> Tracker:
-        """A tracker for a recording's mounting (``imu_to_body``, ``gravity``, ``imu``,
-        ``lever_arm``); ``kwargs`` as for the constructor and take precedence."""
+        """A tracker for a recording's mounting (``imu_to_body``, ``gravity``, ``imu`` with its
+        measured ``imu_noise``, ``lever_arm``, the IMU clock); ``kwargs`` as for the
+        constructor and take precedence."""
         if not isinstance(info, RecordingInfo):
             raise ValueError(f"Tracker.from_recording_info: expected a RecordingInfo, got "
                              f"{type(info).__name__}")
-        kwargs.setdefault("imu", info.imu)
+        measured: dict[str, Any] = info.imu_noise.overrides() if info.imu_noise else {}
+        kwargs.setdefault("imu", dataclasses.replace(imu_profile(info.imu or "mpu9255"),
+                                                     **measured))
+        kwargs.setdefault("imu_time_offset", info.imu_time_offset)
+        kwargs.setdefault("imu_clock_drift_ppm", info.imu_clock_drift_ppm)
         if kwargs.get("method", "kalman") == "kalman":
             kwargs.setdefault("lever_arm", info.lever_arm)
         return cls(info.imu_to_body, info.gravity, **kwargs)
@@ -782,6 +797,8 @@ class Tracker:
             ValueError: ``t`` not a real number, or ``acc``/``gyro`` not 3 numbers.
         """
         t = _time("push_imu", t)
+        if self.imu_clock != (0.0, 0.0):  # onto the mocap clock (the one clock model)
+            t = float(imu_time_to_mocap(t, *self.imu_clock))
         accelerometer = _vector("push_imu", "acc", acc, 3, "m/s^2")
         gyroscope = _vector("push_imu", "gyro", gyro, 3, "rad/s")
         stream = self._imu

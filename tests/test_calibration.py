@@ -208,7 +208,8 @@ def test_calibrate_command_writes_recording_yaml_and_gain(tmp_path, capsys):
     simulation = simulate("pick_tool", seed=1, imu="mpu9255", occlusions=None, duration=20.0)
     folder = write_recording(simulation.recording, tmp_path / "recording")
     out, gain_out = tmp_path / "calibrated.yaml", tmp_path / "gain.yaml"
-    assert main(["calibrate", str(folder), "--out", str(out), "--gain-out", str(gain_out)]) == 0
+    assert main(["calibrate", str(folder), "--paper", "--out", str(out), "--gain-out",
+                 str(gain_out)]) == 0
     assert "baseline gain K" in capsys.readouterr().out
     info = read_info(out)
     expected = calibrate_imu_to_body(simulation.recording).imu_to_body
@@ -223,4 +224,4 @@ def test_calibrate_command_writes_recording_yaml_and_gain(tmp_path, capsys):
     assert "pass --force" in capsys.readouterr().err
     # without recording.yaml, gravity comes from --gravity
     (folder / "recording.yaml").unlink()
-    assert main(["calibrate", str(folder), "--gravity", "0", "-9.81", "0"]) == 0
+    assert main(["calibrate", str(folder), "--paper", "--gravity", "0", "-9.81", "0"]) == 0

@@ -1,19 +1,22 @@
-"""``kfusion calibrate DIR``: the paper's offline calibrations (IMU -> body rotation, gain K).
+"""``kfusion calibrate DIR --out FILE``: self-calibration of a recording from ordinary motion.
 
-Prints ``recording.yaml`` content with the estimated ``imu_to_body`` (and writes it with
-``--out``). The gain K is not a ``recording.yaml`` key (that file holds only ``imu_to_body``,
-``gravity``, ``name``, ``imu`` and ``lever_arm``), so it goes to a separate baseline-parameters
-YAML file with ``--gain-out`` (``gain: K``), which :meth:`kfusion.baseline.BaselineParameters.
-from_mapping` reads.
+DIR needs only ``imu.csv`` and ``mocap.csv``. Its ``recording.yaml`` is optional and may lack
+``imu_to_body``: a given ``gravity`` (or ``--gravity``) is checked against the data, an absent one
+estimated; ``name`` and ``imu`` are kept. The estimators (:mod:`kfusion.calibration`) give
+``imu_to_body``, ``gravity``, ``imu_time_offset``, ``imu_clock_drift_ppm``, ``lever_arm`` (when
+observable) and ``imu_noise``; each is printed with its 1-sigma uncertainty and fit residual, or
+with the reason the motion leaves it undetermined. An undetermined optional key is left out; an
+undetermined mount or gravity writes nothing (exit 2) rather than a guess.
 
-DIR needs ``imu.csv`` and ``mocap.csv``. Its ``recording.yaml`` is optional: when present, its
-gravity, name, IMU profile and lever arm are kept and its ``imu_to_body`` is replaced; when absent,
-gravity comes from ``--gravity`` (default OptiTrack's y-up ``0 -9.81 0``).
+``--paper`` runs the paper's own calibrations instead: the Kabsch mount from still poses and the
+baseline's gain K (``--gain-out``, a baseline-parameters YAML file, since K is not a
+``recording.yaml`` key).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +29,7 @@ from kfusion.calibration import (
     DEFAULT_STILL_DURATION,
     calibrate_gain,
     calibrate_imu_to_body,
+    calibrate_recording,
 )
 from kfusion.conventions import OPTITRACK_GRAVITY
 from kfusion.guards import atomic_write_text
@@ -35,7 +39,6 @@ from kfusion.recording import (
     MOCAP_FILE,
     Recording,
     RecordingError,
-    RecordingInfo,
     info_to_dict,
     parse_info,
     read_imu,
@@ -44,7 +47,8 @@ from kfusion.recording import (
 )
 
 NAME = "calibrate"
-HELP = "Estimate the IMU -> body rotation (Kabsch) and the baseline's gain K from a recording."
+HELP = ("Estimate the IMU's clock offset and drift, mount, gravity, lever arm and noise from a "
+        "recording and write a complete recording.yaml.")
 ORDER = 40
 
 
@@ -58,8 +62,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write the gain K as baseline parameters YAML (gain: K)")
     parser.add_argument("--force", action="store_true", help="overwrite existing output files")
     parser.add_argument("--gravity", nargs=3, type=float, metavar=("GX", "GY", "GZ"),
-                        help="gravity in the mocap frame, m/s^2 (default: recording.yaml's, "
-                        "else 0 -9.81 0)")
+                        help="gravity in the mocap frame, m/s^2, checked against the data "
+                        "(default: recording.yaml's, else estimated; with --paper 0 -9.81 0)")
+    parser.add_argument("--max-offset", type=float, default=5.0, metavar="S",
+                        help="search the IMU clock offset within +-S s (default 5)")
+    parser.add_argument("--paper", action="store_true",
+                        help="the paper's calibrations instead: Kabsch mount from still poses "
+                        "and the gain K; the options below apply to it")
     parser.add_argument("--angular-rate", action="store_true",
                         help="also pair gyroscope rates with mocap rates (for recordings "
                         "without still poses in different orientations)")
@@ -81,20 +90,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def load_for_calibration(folder: Path, gravity: list[float] | None,
                          zeros_occluded: bool = False) -> Recording:
-    """The recording in ``folder``; without ``recording.yaml``, an identity mounting and
-    ``gravity`` (default OptiTrack's)."""
+    """The recording in ``folder``; ``recording.yaml`` optional and may lack ``imu_to_body``
+    and ``gravity`` (read as NaN: unknown); ``gravity`` replaces the file's."""
     if not folder.is_dir():
         raise RecordingError(folder, f"not a recording folder (expected a directory holding "
                              f"{IMU_FILE} and {MOCAP_FILE})")
     if (folder / META_FILE).is_file():
-        info = read_info(folder / META_FILE)
-        if gravity is not None:
-            data = info_to_dict(info)
-            data["gravity"] = list(gravity)
-            info = parse_info(data, "--gravity")
+        info = read_info(folder / META_FILE, require_mount=False)
     else:
-        info = parse_info({"imu_to_body": [1.0, 0.0, 0.0, 0.0],
-                           "gravity": list(gravity or OPTITRACK_GRAVITY)}, "--gravity")
+        info = parse_info({}, META_FILE, require_mount=False)
+    if gravity is not None:
+        data = {**info_to_dict(info), "gravity": list(gravity)}
+        data.pop("imu_to_body")
+        info = parse_info(data, "--gravity", require_mount=False)
     imu = read_imu(folder / IMU_FILE)
     mocap = read_mocap(folder / MOCAP_FILE, zero_position_means_occluded=zeros_occluded)
     return Recording(imu=imu, mocap=mocap, info=info, source=str(folder))
@@ -110,15 +118,36 @@ def run(args: argparse.Namespace) -> int:
     for target in (args.out, args.gain_out):
         if target and Path(target).exists() and not args.force:
             raise FileExistsError(f"{target} exists; pass --force to overwrite it")
+    if args.gain_out and not args.paper:
+        raise ValueError("--gain-out: the gain K comes from the paper's calibration: add --paper")
     recording = load_for_calibration(Path(args.folder), args.gravity, args.zeros_occluded)
+    if args.paper:
+        return _run_paper(args, recording)
+    calibration = calibrate_recording(recording, max_offset=args.max_offset)
+    print("\n".join(f"# {line}" for line in calibration.report()))
+    if not calibration.complete:
+        missing = [key for key in ("imu_to_body", "gravity") if key in calibration.undetermined]
+        raise ValueError(f"{args.folder}: {missing[0]} undetermined: "
+                         f"{calibration.undetermined[missing[0]]}; nothing written")
+    text = yaml.safe_dump(info_to_dict(calibration.info), sort_keys=False)
+    print(text, end="")
+    if args.out:
+        _write(Path(args.out), text, args.force)
+        print(f"# wrote {args.out}")
+    return 0
+
+
+def _run_paper(args: argparse.Namespace, recording: Recording) -> int:
+    """The paper's Kabsch mount from still poses and its gain K."""
+    if not np.isfinite(recording.info.gravity).all():
+        recording = dataclasses.replace(recording, info=dataclasses.replace(
+            recording.info, gravity=np.asarray(OPTITRACK_GRAVITY)))
     rotation = calibrate_imu_to_body(
         recording, gyroscope_threshold=args.gyroscope_threshold,
         gravity_tolerance=args.gravity_tolerance, still_duration=args.still_duration,
         min_pose_angle=args.min_pose_angle, use_angular_rate=args.angular_rate)
     gain = calibrate_gain(recording, rotation.imu_to_body)
-    info = RecordingInfo(imu_to_body=rotation.imu_to_body, gravity=recording.info.gravity,
-                         name=recording.info.name, imu=recording.info.imu,
-                         lever_arm=recording.info.lever_arm)
+    info = dataclasses.replace(recording.info, imu_to_body=rotation.imu_to_body)
     text = yaml.safe_dump(info_to_dict(info), sort_keys=False)
     summary = [
         f"# imu_to_body from {rotation.poses} still pose(s) spanning {rotation.spread_deg:.1f} deg"

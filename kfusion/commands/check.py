@@ -1,4 +1,9 @@
-"""``kfusion check DIR``: validate a recording folder and summarise it."""
+"""``kfusion check DIR``: validate a recording, test that it agrees with itself, summarise it.
+
+Exit 2 with one line naming the likely mistake and its fix when the data contradict
+``recording.yaml`` (clock offset, mount, quaternion order, gravity, time units, no overlap):
+see :mod:`kfusion.calibration.diagnosis`.
+"""
 
 from __future__ import annotations
 
@@ -6,10 +11,12 @@ import argparse
 
 import numpy as np
 
+from kfusion.calibration.diagnosis import diagnose
 from kfusion.recording import Recording, occlusion_durations, read_recording
 
 NAME = "check"
-HELP = "Validate a recording folder and print a summary (duration, rates, occlusions)."
+HELP = ("Validate a recording folder, test its consistency (clock, mount, gravity) and print a "
+        "summary.")
 ORDER = 10
 
 
@@ -47,6 +54,11 @@ def summarise(recording: Recording) -> str:
 
 def run(args: argparse.Namespace) -> int:
     recording = read_recording(args.folder, zero_position_means_occluded=args.zeros_occluded)
+    diagnosis = diagnose(recording)
+    if not diagnosis.ok:
+        raise ValueError(f"{args.folder}: {diagnosis.problems[0]}")
     print(f"ok: {args.folder}")
     print(summarise(recording))
+    for note in diagnosis.notes:
+        print(f"consistency: {note}")
     return 0

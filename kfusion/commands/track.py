@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from kfusion.calibration.diagnosis import diagnose
 from kfusion.config import check_methods
 from kfusion.conventions import STATUSES
 from kfusion.guards import YamlError, load_yaml_text, short_repr
@@ -58,12 +59,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "e.g. --set max_bridge_s=0.5")
     parser.add_argument("--zeros-occluded", action="store_true",
                         help="read a mocap position of exactly (0, 0, 0) as occluded")
+    parser.add_argument("--force", action="store_true",
+                        help="track even when the recording fails kfusion check's consistency "
+                        "tests (clock, mount, gravity)")
 
 
 def run(args: argparse.Namespace) -> int:
     recording = read_recording(args.folder, zero_position_means_occluded=args.zeros_occluded)
-    result = track_recording(recording, args.method,
-                             **parse_options(args.options, args.method))
+    diagnosis = diagnose(recording)
+    if not diagnosis.ok and not args.force:
+        raise ValueError(f"{args.folder}: {diagnosis.problems[0]} (or pass --force)")
+    result = track_recording(recording, args.method, **parse_options(args.options, args.method))
     path = write_track_csv(result, args.out)
     counts = {status: int(np.sum(result.status == status)) for status in STATUSES}
     summary = ", ".join(f"{count} {status}" for status, count in counts.items())

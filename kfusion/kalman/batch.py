@@ -25,9 +25,12 @@ from kfusion.track import TrackResult
 def resolve_parameters(recording: Recording, params: KalmanParameters | None,
                        overrides: dict[str, Any]) -> KalmanParameters:
     """``params`` with ``overrides`` applied, or parameters from the recording's IMU profile
-    (``recording.info.imu``; the default profile when unset) and ``overrides``."""
+    (``recording.info.imu``; the default profile when unset), its measured ``imu_noise`` and
+    ``overrides``."""
     if params is None:
-        return KalmanParameters.from_profiles(recording.info.imu, None, **overrides)
+        measured = recording.info.imu_noise.overrides() if recording.info.imu_noise else {}
+        return KalmanParameters.from_profiles(recording.info.imu, None,
+                                              **{**measured, **overrides})
     if not isinstance(params, KalmanParameters):
         raise ValueError(f"params: expected KalmanParameters or None, got "
                          f"{type(params).__name__}")

@@ -14,9 +14,18 @@ Pipeline (each step a small function):
    (:mod:`kfusion.simulate.occlusions`), and the visible ones get the mocap profile's noise
    (:mod:`kfusion.simulate.mocap`).
 
-Clock: both sensors share it. IMU samples at ``k / imu_rate``, mocap frames at ``k / mocap_rate``
-for k = 0, 1, ... up to the duration, so the first mocap frame coincides with the first IMU
-sample (at 200 Hz and 100 Hz every mocap time is also an IMU time).
+Clock: by default both sensors share it. IMU samples at ``k / imu_rate``, mocap frames at
+``k / mocap_rate`` for k = 0, 1, ... up to the duration, so the first mocap frame coincides with
+the first IMU sample (at 200 Hz and 100 Hz every mocap time is also an IMU time). With
+``imu_time_offset`` c and ``imu_clock_drift_ppm`` d the IMU runs on its own clock
+(:func:`kfusion.conventions.imu_time_to_mocap`): it ticks every ``1 / imu_rate`` s of its own
+clock, sample k is taken at mocap time ``k (1 + d 1e-6) / imu_rate`` and stamped
+``k / imu_rate - c / (1 + d 1e-6)``. The recording's info keeps c = d = 0 (what an uncalibrated
+recording says); :attr:`Simulation.imu_clock` holds the truth.
+
+Lever arm: ``lever_arm`` r (body frame, m) puts the IMU off the rigid-body origin; it then feels
+``a_imu = a_body + R_global_body (alpha x r + omega x (omega x r))`` (alpha, omega body frame;
+alpha by a central difference of the exact rate, h = 1e-5 s, one-sided at the ends).
 
 Random streams: ``numpy.random.default_rng(seed)`` is split (``Generator.spawn``) into
 independent streams for the trajectory and mount, the IMU, the mocap noise and the occlusions,
@@ -29,7 +38,7 @@ import math
 from dataclasses import dataclass, field, fields
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from kfusion.conventions import (
     OPTITRACK_GRAVITY,
@@ -75,9 +84,9 @@ class Truth:
         quaternion: (m, 4) true body -> global, [w, x, y, z] (None when read from disk).
 
     Dense, at the IMU times (None when read from disk):
-        imu_t: (n,) s.
-        imu_position, imu_velocity, imu_acceleration: (n, 3) of the IMU (= the rigid-body
-            origin), m, m/s, m/s^2, global frame.
+        imu_t: (n,) s, the IMU sample instants on the mocap clock.
+        imu_position, imu_velocity, imu_acceleration: (n, 3) of the IMU (the rigid-body
+            origin plus the lever arm), m, m/s, m/s^2, global frame.
         imu_quaternion: (n, 4) true IMU -> global (q_global_imu), [w, x, y, z].
         imu_angular_rate: (n, 3) true angular rate, rad/s, IMU frame.
         imu_specific_force: (n, 3) true specific force, m/s^2, IMU frame.
@@ -138,6 +147,8 @@ class Simulation:
     seed: int
     imu_profile: ImuProfile | None = field(default=None, repr=False)
     mocap_profile: MocapProfile | None = field(default=None, repr=False)
+    imu_clock: tuple[float, float] = (0.0, 0.0)
+    """The true IMU clock (imu_time_offset s, imu_clock_drift_ppm)."""
 
 
 def sample_times(duration: float, rate: float) -> Array:
@@ -180,6 +191,9 @@ def simulate(
     duration: float | None = None,
     imu_rate: float = 200.0,
     mocap_rate: float | None = None,
+    imu_time_offset: float = 0.0,
+    imu_clock_drift_ppm: float = 0.0,
+    lever_arm: ArrayLike | None = None,
 ) -> Simulation:
     """Simulate ``scenario`` (one of :data:`SCENARIOS`) and return recording plus truth.
 
@@ -192,6 +206,10 @@ def simulate(
         duration: s, at least 5; None for the scenario's default (30-45 s).
         imu_rate: IMU sample rate, Hz.
         mocap_rate: mocap frame rate, Hz; None for the mocap profile's rate.
+        imu_time_offset: s, and imu_clock_drift_ppm: the IMU's own clock (module docstring);
+            the recording's info does not say them.
+        lever_arm: (3,) IMU position in the body frame, m (default zero); written to the
+            recording's info.
 
     Raises ValueError on an unknown scenario or profile, bad numbers, or when the occlusion spec
     fits no gap.
@@ -208,6 +226,15 @@ def simulate(
     imu_rate = _check_rate("imu_rate", imu_rate)
     mocap_rate = _check_rate("mocap_rate",
                              mocap_object.rate if mocap_rate is None else mocap_rate)
+    for name, value, limit in (("imu_time_offset", imu_time_offset, 1e6),
+                               ("imu_clock_drift_ppm", imu_clock_drift_ppm, 1e4)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                math.isfinite(value) and abs(value) <= limit):
+            raise ValueError(f"{name}: expected a finite number within +-{limit:g}, got "
+                             f"{value!r}")
+    arm = np.zeros(3) if lever_arm is None else np.asarray(lever_arm, dtype=float)
+    if arm.shape != (3,) or not np.isfinite(arm).all():
+        raise ValueError(f"lever_arm: expected 3 finite numbers (m), got shape {arm.shape}")
     if occlusions is not None and not isinstance(occlusions, OcclusionSpec):
         raise ValueError(f"occlusions: expected an OcclusionSpec or None, got {occlusions!r}")
 
@@ -216,13 +243,29 @@ def simulate(
     q_body_imu = mount_quaternion(motion_rng)
     gravity = np.array(OPTITRACK_GRAVITY)
 
-    # dense truth at the IMU times
-    imu_t = sample_times(length, imu_rate)
+    # dense truth at the IMU sample instants (mocap clock)
+    scale = 1.0 + imu_clock_drift_ppm * 1e-6
+    imu_t = sample_times(length / scale, imu_rate) * scale
+    imu_stamps = imu_t / scale - imu_time_offset / scale
     dense = motion.state(imu_t)
     q_global_imu = quaternion_multiply(dense.quaternion, q_body_imu)
     R_imu_body = matrix_from_wxyz(q_body_imu).T
     R_imu_global = np.transpose(matrix_from_wxyz(q_global_imu), (0, 2, 1))
-    true_force = specific_force(R_imu_global, dense.acceleration, gravity)
+    imu_position, imu_velocity, imu_acceleration = (dense.position, dense.velocity,
+                                                    dense.acceleration)
+    if arm.any():
+        step = 1e-5
+        low, high = np.maximum(imu_t - step, 0.0), np.minimum(imu_t + step, length)
+        alpha = (motion.state(high).angular_rate - motion.state(low).angular_rate) / (
+            high - low)[:, None]
+        omega = dense.angular_rate
+        lever = np.cross(alpha, arm) + np.cross(omega, np.cross(omega, arm))
+        R_global_body = matrix_from_wxyz(dense.quaternion)
+        imu_position = imu_position + R_global_body @ arm
+        imu_velocity = imu_velocity + np.einsum("nij,nj->ni", R_global_body,
+                                                np.cross(omega, arm))
+        imu_acceleration = imu_acceleration + np.einsum("nij,nj->ni", R_global_body, lever)
+    true_force = specific_force(R_imu_global, imu_acceleration, gravity)
     true_rate = dense.angular_rate @ R_imu_body.T
     measured = simulate_imu(imu_rng, imu_object, 1.0 / imu_rate, true_force, true_rate)
 
@@ -237,17 +280,17 @@ def simulate(
                                          frames.quaternion, occluded)
 
     recording = Recording(
-        imu=ImuSamples(t=imu_t, accelerometer=measured.accelerometer,
+        imu=ImuSamples(t=imu_stamps, accelerometer=measured.accelerometer,
                        gyroscope=measured.gyroscope),
         mocap=MocapFrames(t=mocap_t, position=position, quaternion=quaternion),
         info=RecordingInfo(imu_to_body=q_body_imu, gravity=gravity,
                            name=f"{scenario} (simulated, seed {seed})", imu=imu_object.name,
-                           lever_arm=np.zeros(3)),
+                           lever_arm=arm),
     )
     truth = Truth(
         t=mocap_t, position=frames.position, occluded=occluded, quaternion=frames.quaternion,
-        imu_t=imu_t, imu_position=dense.position, imu_velocity=dense.velocity,
-        imu_acceleration=dense.acceleration, imu_quaternion=q_global_imu,
+        imu_t=imu_t, imu_position=imu_position, imu_velocity=imu_velocity,
+        imu_acceleration=imu_acceleration, imu_quaternion=q_global_imu,
         imu_angular_rate=true_rate, imu_specific_force=true_force,
         accelerometer_bias=measured.accelerometer_errors.bias,
         gyroscope_bias=measured.gyroscope_errors.bias,
@@ -255,4 +298,5 @@ def simulate(
         gyroscope_matrix=measured.gyroscope_errors.matrix,
     )
     return Simulation(recording=recording, truth=truth, scenario=scenario, seed=int(seed),
-                      imu_profile=imu_object, mocap_profile=mocap_object)
+                      imu_profile=imu_object, mocap_profile=mocap_object,
+                      imu_clock=(float(imu_time_offset), float(imu_clock_drift_ppm)))

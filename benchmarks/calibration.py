@@ -1,0 +1,172 @@
+"""Self-calibration benchmark (issue 10): clock, mount, lever arm, gap error and run time.
+
+Simulated: random_reach, pick_tool, circle and arm_lift (mpu9255, IMU 200 Hz, mocap 100 Hz,
+0.1-0.3 s occlusions), each seed with a random IMU clock offset in +-2 s, drift in +-100 ppm and a
+random lever arm of 2-5 cm; calibrated from imu.csv + mocap.csv alone (mount, gravity and lever
+arm unknown). Gap RMS (kalman) after calibration is compared with the same simulation on one
+clock with the true recording.yaml ("synchronised"), and with the uncalibrated clock ("before").
+
+BROAD: every trial (mocap every 3rd sample), IMU stamps shifted and scaled artificially,
+``t' = (t - c) / (1 + d 1e-6)``; the expected calibration is then ``c + c0`` and ``d + d0`` with
+(c0, d0) what the calibration finds on the original trial (the real IMU's own latency, a few ms).
+The mount is compared with the identity that kfusion uses for BROAD (the dataset defines opt_quat
+as the IMU box's own orientation, so IMU -> body is identity by construction).
+
+Run: ``python benchmarks/calibration.py [--seeds 3] [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+
+import numpy as np
+import pandas as pd
+
+from kfusion.calibration import calibrate_recording
+from kfusion.conventions import rotation_from_wxyz
+from kfusion.datasets import broad_trials
+from kfusion.evaluate import cut_gaps, gap_errors, metrics_from_errors
+from kfusion.methods import track_recording
+from kfusion.readers.broad import read_broad
+from kfusion.recording import ImuSamples, Recording
+from kfusion.simulate import simulate
+
+SCENARIOS = ("random_reach", "pick_tool", "circle", "arm_lift")
+
+
+def angle_deg(first: np.ndarray, second: np.ndarray) -> float:
+    return float(np.degrees((rotation_from_wxyz(first).inv()
+                             * rotation_from_wxyz(second)).magnitude()))
+
+
+def unknown(recording: Recording) -> Recording:
+    """Only imu.csv and mocap.csv: mount, gravity, lever arm and clock unknown."""
+    return dataclasses.replace(recording, info=dataclasses.replace(
+        recording.info, imu_to_body=np.full(4, np.nan), gravity=np.full(3, np.nan),
+        lever_arm=None, imu_time_offset=0.0, imu_clock_drift_ppm=0.0, imu_noise=None))
+
+
+def gap_rms_mm(recording: Recording, truth: np.ndarray, mask: np.ndarray) -> float:
+    result = track_recording(recording, "kalman")
+    return float(metrics_from_errors(gap_errors(result, truth, mask))["rms_mm"])
+
+
+def simulated_rows(seeds: int, duration: float) -> list[dict]:
+    rows = []
+    for scenario in SCENARIOS:
+        for seed in range(seeds):
+            rng = np.random.default_rng(1000 + seed)
+            offset = float(rng.uniform(-2, 2))
+            drift = float(rng.uniform(-100, 100))
+            direction = rng.standard_normal(3)
+            lever = direction / np.linalg.norm(direction) * rng.uniform(0.02, 0.05)
+            shifted = simulate(scenario, seed=seed, duration=duration, imu_time_offset=offset,
+                               imu_clock_drift_ppm=drift, lever_arm=lever)
+            synced = simulate(scenario, seed=seed, duration=duration, lever_arm=lever)
+            start = time.perf_counter()
+            calibration = calibrate_recording(unknown(shifted.recording))
+            seconds = time.perf_counter() - start
+            info = calibration.info
+            truth, mask = shifted.truth.position, shifted.truth.occluded
+            row = {"recording": f"{scenario}/{seed}", "offset_s": offset, "drift_ppm": drift,
+                   "offset_error_ms": (info.imu_time_offset - offset) * 1e3,
+                   "offset_std_ms": calibration.clock_and_mount.fit.offset_std * 1e3,
+                   "drift_error_ppm": info.imu_clock_drift_ppm - drift
+                   if "imu_clock_drift_ppm" not in calibration.undetermined else np.nan,
+                   "mount_error_deg": angle_deg(info.imu_to_body,
+                                                shifted.recording.info.imu_to_body)
+                   if calibration.complete else np.nan,
+                   "lever_error_mm": float(np.max(np.abs(info.lever_arm - lever)) * 1e3)
+                   if info.lever_arm is not None else np.nan,
+                   "undetermined": ",".join(sorted(calibration.undetermined)) or "-",
+                   "calibrate_s": seconds}
+            row["gap_rms_synced_mm"] = gap_rms_mm(synced.recording, synced.truth.position,
+                                                  synced.truth.occluded)
+            row["gap_rms_before_mm"] = gap_rms_mm(shifted.recording, truth, mask)
+            if calibration.complete:
+                calibrated = dataclasses.replace(shifted.recording, info=info)
+                row["gap_rms_after_mm"] = gap_rms_mm(calibrated, truth, mask)
+            else:
+                row["gap_rms_after_mm"] = np.nan
+            row["gap_target_met"] = bool(row["gap_rms_after_mm"]
+                                         <= 1.2 * row["gap_rms_synced_mm"] + 0.5)
+            rows.append(row)
+    return rows
+
+
+def shift(recording: Recording, offset: float, drift_ppm: float) -> Recording:
+    """IMU stamps re-expressed on a clock with ``t_mocap = (1 + d) t' + c``."""
+    imu = recording.imu
+    stamps = (imu.t - offset) / (1.0 + drift_ppm * 1e-6)
+    return dataclasses.replace(recording, imu=ImuSamples(stamps, imu.accelerometer,
+                                                         imu.gyroscope))
+
+
+def broad_rows(trials: int | None) -> list[dict]:
+    rows = []
+    rng = np.random.default_rng(7)
+    for path in broad_trials()[:trials]:
+        original = read_broad(path, mocap_step=3)
+        own = calibrate_recording(original).info
+        offset, drift = float(rng.uniform(-2, 2)), float(rng.uniform(-100, 100))
+        shifted = shift(original, offset, drift)
+        start = time.perf_counter()
+        calibration = calibrate_recording(shifted)
+        seconds = time.perf_counter() - start
+        info = calibration.info
+        expected_offset = offset * (1 + own.imu_clock_drift_ppm * 1e-6) + own.imu_time_offset
+        gapped = cut_gaps(original, rng=np.random.default_rng(0))
+        gapped_shifted = shift(gapped.recording, offset, drift)
+        truth, mask = gapped.truth_position, gapped.gap_mask
+        rows.append({
+            "recording": path.stem, "offset_s": offset, "drift_ppm": drift,
+            "own_offset_ms": own.imu_time_offset * 1e3, "own_drift_ppm": own.imu_clock_drift_ppm,
+            "offset_error_ms": (info.imu_time_offset - expected_offset) * 1e3,
+            "drift_error_ppm": info.imu_clock_drift_ppm - drift - own.imu_clock_drift_ppm
+            if "imu_clock_drift_ppm" not in calibration.undetermined else np.nan,
+            "mount_vs_identity_deg": angle_deg(info.imu_to_body, original.info.imu_to_body)
+            if calibration.complete else np.nan,
+            "undetermined": ",".join(sorted(calibration.undetermined)) or "-",
+            "calibrate_s": seconds,
+            "gap_rms_today_mm": gap_rms_mm(gapped.recording, truth, mask),
+            "gap_rms_shifted_uncalibrated_mm": gap_rms_mm(gapped_shifted, truth, mask),
+            "gap_rms_after_mm": gap_rms_mm(dataclasses.replace(
+                gapped_shifted, info=dataclasses.replace(info, imu=original.info.imu)), truth,
+                mask) if calibration.complete else np.nan,
+        })
+    return rows
+
+
+def summary(table: pd.DataFrame) -> str:
+    numeric = table.select_dtypes("number").abs()
+    return "max |value| over recordings:\n" + numeric.max().to_string(float_format="{:.3f}".format)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=3, help="seeds per scenario")
+    parser.add_argument("--duration", type=float, default=180.0,
+                        help="simulated recording length, s (default 180: 3 minutes)")
+    parser.add_argument("--quick", action="store_true",
+                        help="1 seed of 60 s per scenario, 2 BROAD trials")
+    args = parser.parse_args()
+    seeds, duration = (1, 60.0) if args.quick else (args.seeds, args.duration)
+    pd.set_option("display.width", 250)
+    pd.set_option("display.max_columns", 30)
+    start = time.perf_counter()
+    simulated = pd.DataFrame(simulated_rows(seeds, duration)).set_index("recording")
+    print(f"\n### simulated, {duration:.0f} s, IMU 200 Hz / mocap 100 Hz, {seeds} seed(s)\n")
+    print(simulated.to_string(float_format="{:.3f}".format))
+    print(summary(simulated))
+    broad = pd.DataFrame(broad_rows(2 if args.quick else None)).set_index("recording")
+    print("\n### BROAD, mocap every 3rd sample, IMU stamps shifted and scaled\n")
+    print(broad.to_string(float_format="{:.3f}".format))
+    print(summary(broad))
+    print(f"\n(total benchmark time {time.perf_counter() - start:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

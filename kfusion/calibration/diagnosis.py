@@ -1,0 +1,214 @@
+"""Does a recording agree with itself? The consistency diagnosis of ``kfusion check``.
+
+Run on the recording as its ``recording.yaml`` describes it (clock model applied), with the
+self-calibration's estimators (:mod:`kfusion.calibration`), in this order, stopping at the first
+mistake found (later tests assume the earlier ones passed):
+
+1. time units: one stream's time span about 1000 times the other's (ms instead of s);
+2. time overlap of the IMU and the mocap;
+3. quaternion order: the rate-magnitude correlation is much better with the mocap quaternion
+   columns read as x, y, z, w;
+4. clock: the correlation's peak more than :data:`CLOCK_TOLERANCE_S` from zero;
+5. mount: the Kabsch mount from paired rates more than :data:`MOUNT_TOLERANCE_DEG` from
+   ``imu_to_body``;
+6. gravity: the least-squares gravity more than :data:`GRAVITY_TOLERANCE_DEG` from ``gravity``
+   (a flipped sign, a wrong axis), or its length far from 9.81 (units).
+
+Each finding is one line naming the likely mistake and the fix. A test the motion cannot decide
+(too little rotation, say) is a note, not a finding.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Final
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from kfusion.calibration.clock import Correlation, coarse_clock_offset, on_mocap_clock
+from kfusion.calibration.rates import (
+    MIN_ROTATION_RATE,
+    MIN_SECOND_AXIS,
+    mount_from_rates,
+    rate_pairs,
+    rate_spread,
+)
+from kfusion.calibration.recording import GRAVITY_TOLERANCE_DEG, angle_between_deg
+from kfusion.calibration.specific_force import fit_specific_force
+from kfusion.conventions import rotation_from_wxyz
+from kfusion.recording import MocapFrames, Recording
+
+CLOCK_TOLERANCE_S: Final = 0.010
+"""s: a clock offset beyond this is reported (1 m/s of arm speed turns 10 ms into 10 mm)."""
+MOUNT_TOLERANCE_DEG: Final = 5.0
+"""deg: a mount error beyond this is reported (5 deg of tilt leaks 0.85 m/s^2 of gravity)."""
+MIN_CORRELATION: Final = 0.8
+"""Peak correlation below which the clock test is not decided (2 s of a still IMU's noise
+correlate up to about 0.55 somewhere)."""
+MIN_PEAK_MARGIN: Final = 0.15
+"""The peak must beat the best correlation more than 0.25 s away by this much (a unique
+match), unless it reaches :data:`CLEAR_CORRELATION` (periodic motion repeats its pattern)."""
+CLEAR_CORRELATION: Final = 0.95
+MAX_RATE_MISFIT: Final = 0.3
+"""Relative RMS misfit of the rates under the best mount above which the mocap orientations
+do not match the gyroscope at all (the quaternion order test)."""
+MIN_GRAVITY_SECONDS: Final = 5.0
+"""s: visible mocap needed (after trimming run ends) to test gravity."""
+UNITS_RATIO: Final = (300.0, 3000.0)
+"""A stream whose time span is this many times the other's was written in ms."""
+CALIBRATE_FIX: Final = "run kfusion calibrate DIR --out DIR/recording.yaml"
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Result of :func:`diagnose`.
+
+    Attributes:
+        problems: one line per mistake found (empty: the recording agrees with itself).
+        notes: tests that were passed, or that the motion could not decide.
+        correlation: the clock correlation (None if not reached).
+    """
+
+    problems: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    correlation: Correlation | None = None
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def _span(t: np.ndarray) -> float:
+    return float(t[-1] - t[0]) if len(t) > 1 else 0.0
+
+
+def time_unit_problem(recording: Recording) -> str | None:
+    """A message when one stream's time span is ~1000 times the other's, else None."""
+    imu, mocap = _span(recording.imu.t), _span(recording.mocap.t)
+    low, high = UNITS_RATIO
+    if mocap > 0 and low <= imu / mocap <= high:
+        return (f"IMU time looks like ms: imu.csv spans {imu:.6g} against the mocap's "
+                f"{mocap:.6g} s: divide imu.csv's t by 1000")
+    if imu > 0 and low <= mocap / imu <= high:
+        return (f"mocap time looks like ms: mocap.csv spans {mocap:.6g} against the IMU's "
+                f"{imu:.6g} s: divide mocap.csv's t by 1000")
+    return None
+
+
+def overlap_seconds(recording: Recording) -> float:
+    """Length of the common time span of the IMU and the visible mocap, s (<= 0: none)."""
+    visible = recording.mocap.t[recording.mocap.visible]
+    if len(visible) == 0:
+        return 0.0
+    return float(min(recording.imu.t[-1], visible[-1]) - max(recording.imu.t[0], visible[0]))
+
+
+def relative_rate_misfit(rate_body: np.ndarray, rate_imu: np.ndarray) -> float:
+    """``RMS|w_body - R w_imu| / RMS|w_body|`` under the Kabsch mount R (0: a perfect match)."""
+    R = mount_from_rates(rate_body, rate_imu)
+    misfit = rate_body - rate_imu @ R.T
+    return float(np.sqrt(np.mean(np.sum(misfit**2, axis=1)) / np.mean(np.sum(rate_body**2,
+                                                                            axis=1))))
+
+
+def _reordered(recording: Recording) -> Recording:
+    """The recording with the mocap quaternion columns read as x, y, z, w."""
+    mocap = recording.mocap
+    quaternion = mocap.quaternion[:, [3, 0, 1, 2]]
+    return recording.with_mocap(MocapFrames(t=mocap.t, position=mocap.position,
+                                            quaternion=quaternion))
+
+
+def diagnose(recording: Recording) -> Diagnosis:
+    """The consistency tests of the module docstring on ``recording`` (as described by its
+    info)."""
+    notes: list[str] = []
+    unit = time_unit_problem(recording)
+    if unit:
+        return Diagnosis([unit])
+    recording = on_mocap_clock(recording)
+    overlap = overlap_seconds(recording)
+    if overlap <= 1.0:
+        imu, mocap = recording.imu.t, recording.mocap.t
+        return Diagnosis([f"no time overlap: the IMU spans {imu[0]:.3f}-{imu[-1]:.3f} s and "
+                          f"the mocap {mocap[0]:.3f}-{mocap[-1]:.3f} s (overlap "
+                          f"{max(overlap, 0.0):.3f} s): check both files' t column (same clock,"
+                          f" seconds) or {CALIBRATE_FIX}"])
+    try:
+        correlation = coarse_clock_offset(recording)
+    except ValueError as error:
+        return Diagnosis(notes=[f"clock and mount not checked: {error}"])
+    try:
+        swapped = coarse_clock_offset(_reordered(recording))
+        if swapped.peak > max(correlation.peak + 0.2, 0.8):
+            return Diagnosis([f"quaternion columns look like x, y, z, w: the mocap rates match "
+                              f"the gyroscope with qw read from the last column (correlation "
+                              f"{swapped.peak:.2f} against {correlation.peak:.2f}): write "
+                              "mocap.csv's quaternion as qw, qx, qy, qz"], correlation=swapped)
+    except ValueError:
+        pass
+    offset = correlation.offset
+    unique = correlation.peak >= CLEAR_CORRELATION or (
+        correlation.peak - correlation.runner_up >= MIN_PEAK_MARGIN)
+    if correlation.peak < MIN_CORRELATION or not unique:
+        notes.append(f"clock not checked: too little rotation (correlation peak "
+                     f"{correlation.peak:.2f}, next best {correlation.runner_up:.2f})")
+        offset = 0.0
+    elif abs(offset) > CLOCK_TOLERANCE_S:
+        side = "behind" if offset > 0 else "ahead of"
+        return Diagnosis([f"IMU clock about {abs(offset) * 1e3:.0f} ms {side} the mocap: "
+                          f"{CALIBRATE_FIX}"], correlation=correlation)
+    else:
+        notes.append(f"clock: offset {offset * 1e3:+.1f} ms (correlation {correlation.peak:.3f})")
+    pairs = rate_pairs(recording, offset)
+    principal, _ = rate_spread(pairs.mocap.rate) if len(pairs.mocap.start) else (np.zeros(3), 0)
+    if principal[0] < MIN_ROTATION_RATE or principal[1] < MIN_SECOND_AXIS * principal[0]:
+        notes.append("mount not checked: the limb rotates about one axis only or too little")
+    else:
+        gyroscope = pairs.gyroscope(offset, 0.0)
+        best = Rotation.from_matrix(mount_from_rates(pairs.mocap.rate, gyroscope))
+        misfit = relative_rate_misfit(pairs.mocap.rate, gyroscope)
+        if misfit > MAX_RATE_MISFIT:
+            swapped_pairs = rate_pairs(_reordered(recording), offset)
+            swapped = relative_rate_misfit(swapped_pairs.mocap.rate,
+                                           swapped_pairs.gyroscope(offset, 0.0))
+            if swapped < 0.5 * misfit:
+                return Diagnosis([f"quaternion columns look like x, y, z, w: no mount matches "
+                                  f"the gyroscope to the mocap rates (misfit {misfit:.0%}), but "
+                                  f"with qw read from the last column one does ({swapped:.0%}):"
+                                  " write mocap.csv's quaternion as qw, qx, qy, qz"],
+                                 correlation=correlation)
+        angle = float(np.degrees((best.inv() * rotation_from_wxyz(
+            recording.info.imu_to_body)).magnitude()))
+        if angle > MOUNT_TOLERANCE_DEG:
+            quaternion = np.round(best.as_quat(scalar_first=True), 3).tolist()
+            return Diagnosis([f"mount wrong: the gyroscope matches the mocap rates with "
+                              f"imu_to_body about {quaternion}, {angle:.0f} deg from "
+                              f"recording.yaml's: {CALIBRATE_FIX}"], correlation=correlation)
+        notes.append(f"mount: within {angle:.1f} deg of the rates' best fit")
+    try:
+        force = fit_specific_force(recording, offset, 0.0, recording.info.imu_to_body)
+    except ValueError as error:
+        notes.append(f"gravity not checked: {error}")
+        return Diagnosis(notes=notes, correlation=correlation)
+    seconds = force.samples * float(np.median(np.diff(recording.mocap.t)))
+    if seconds < MIN_GRAVITY_SECONDS:
+        notes.append(f"gravity not checked: {seconds:.1f} s of usable visible mocap (expected "
+                     f"at least {MIN_GRAVITY_SECONDS:g} s)")
+        return Diagnosis(notes=notes, correlation=correlation)
+    given, fitted = recording.info.gravity, force.gravity
+    angle = angle_between_deg(given, fitted)
+    magnitude = float(np.linalg.norm(fitted))
+    if angle > GRAVITY_TOLERANCE_DEG:
+        kind = "sign flipped" if angle > 150 else "wrong axis"
+        return Diagnosis([f"gravity {kind}: the accelerometer says gravity is about "
+                          f"{np.round(fitted, 1).tolist()} m/s^2, recording.yaml says "
+                          f"{np.round(given, 2).tolist()} ({angle:.0f} deg apart): fix gravity "
+                          f"in recording.yaml or {CALIBRATE_FIX}"], correlation=correlation)
+    if not 7.0 <= magnitude <= 12.5:
+        return Diagnosis([f"accelerometer scale: gravity measures {magnitude:.3g} m/s^2 "
+                          "(expected about 9.81): check the accelerometer's unit (m/s^2)"],
+                         correlation=correlation)
+    notes.append(f"gravity: within {angle:.1f} deg of the accelerometer's ({magnitude:.2f} m/s^2)")
+    return Diagnosis(notes=notes, correlation=correlation)

@@ -1,0 +1,182 @@
+"""Self-calibration of a recording: clock, mount, gravity, lever arm and noise, from the data.
+
+:func:`calibrate_recording` chains the estimators (each in its own module) and collects, for
+every quantity, its value, its 1-sigma uncertainty, a fit residual, or the reason the motion does
+not determine it. ``kfusion calibrate`` prints and writes its result; ``kfusion check`` runs the
+same estimators (:mod:`kfusion.calibration.diagnosis`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kfusion.calibration.clock import Correlation, coarse_clock_offset
+from kfusion.calibration.noise import NoiseEstimate, estimate_noise
+from kfusion.calibration.rates import ClockAndMount, calibrate_clock_and_mount
+from kfusion.calibration.specific_force import (
+    MAX_LEVER_ARM_STD,
+    SpecificForceFit,
+    fit_specific_force,
+)
+from kfusion.conventions import GRAVITY_MAGNITUDE_RANGE
+from kfusion.recording import ImuNoise, Recording, RecordingInfo
+
+Array = NDArray[np.float64]
+
+GRAVITY_TOLERANCE_DEG = 10.0
+"""deg: a given gravity further than this from the fitted one is wrong."""
+NOMINAL_GRAVITY = 9.81
+"""m/s^2: length written for an estimated gravity (the accelerometer's scale error makes the
+fitted length uncertain by about 1 %)."""
+MAX_GRAVITY_STD = 0.2
+"""m/s^2: a gravity fitted less precisely than this is undetermined."""
+
+
+def angle_between_deg(first: Array, second: Array) -> float:
+    """Angle between two vectors, degrees."""
+    cosine = float(np.dot(first, second) / (np.linalg.norm(first) * np.linalg.norm(second)))
+    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+
+
+@dataclass(frozen=True)
+class SelfCalibration:
+    """Result of :func:`calibrate_recording`.
+
+    Attributes:
+        correlation: the coarse cross-correlation of rate magnitudes.
+        clock_and_mount: the joint rate fit (offset, drift, mount, gyro bias).
+        specific_force: gravity, lever arm and accelerometer bias fit (None if impossible).
+        noise: noise densities.
+        info: the calibrated ``recording.yaml`` content; ``imu_to_body`` or ``gravity`` are NaN
+            when undetermined (then it must not be written).
+        undetermined: quantity -> why the motion does not determine it.
+    """
+
+    correlation: Correlation
+    clock_and_mount: ClockAndMount
+    specific_force: SpecificForceFit | None
+    noise: NoiseEstimate
+    info: RecordingInfo
+    undetermined: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def complete(self) -> bool:
+        """True when both required keys (mount and gravity) are determined."""
+        return bool(np.isfinite(self.info.imu_to_body).all()
+                    and np.isfinite(self.info.gravity).all())
+
+    def report(self) -> list[str]:
+        """One line per quantity: value, 1-sigma and fit residual, or why it is undetermined."""
+        fit = self.clock_and_mount.fit
+        correlation = self.correlation
+        lines = [f"clock correlation: peak {correlation.peak:.3f} at "
+                 f"{correlation.offset * 1e3:+.1f} ms (next best {correlation.runner_up:.3f} "
+                 "more than 0.25 s away)"]
+
+        def line(key: str, text: str) -> None:
+            lines.append(f"{key}: " + (f"undetermined: {self.undetermined[key]}"
+                                       if key in self.undetermined else text))
+
+        line("imu_time_offset", f"{fit.offset * 1e3:+.3f} ms +- {fit.offset_std * 1e3:.3f} ms "
+             f"(rate residual {fit.residual_rms:.3f} rad/s RMS over {fit.pairs} intervals)")
+        line("imu_clock_drift_ppm", f"{fit.drift_ppm:+.1f} +- {fit.drift_std_ppm:.1f} ppm "
+             f"({len(self.clock_and_mount.windows.offset)} windows)")
+        std = np.round(fit.mount_std_deg, 3).tolist()
+        line("imu_to_body", f"{np.round(fit.imu_to_body, 6).tolist()} +- {std} deg about body "
+             f"x, y, z (rate residual {fit.residual_rms:.3f} rad/s RMS)")
+        lines.append(f"gyroscope bias: {np.round(fit.gyroscope_bias, 4).tolist()} +- "
+                     f"{np.round(fit.gyroscope_bias_std, 4).tolist()} rad/s")
+        force = self.specific_force
+        if force is not None:
+            line("gravity", f"{np.round(self.info.gravity, 4).tolist()} m/s^2 (fitted "
+                 f"{np.round(force.gravity, 3).tolist()} +- "
+                 f"{np.round(force.gravity_std, 3).tolist()}; specific-force residual "
+                 f"{force.residual_rms:.3f} m/s^2 RMS, {force.residual_before_rms:.3f} "
+                 "without lever arm and bias)")
+            line("lever_arm", f"{np.round(force.lever_arm * 1e3, 1).tolist()} mm +- "
+                 f"{np.round(force.lever_arm_std * 1e3, 1).tolist()} mm")
+            lines.append("accelerometer bias: " + (
+                f"{np.round(force.accelerometer_bias, 3).tolist()} +- "
+                f"{np.round(force.accelerometer_bias_std, 3).tolist()} m/s^2"
+                if np.isfinite(force.accelerometer_bias_std).all() else
+                "not separable from gravity (too little change of orientation): not fitted"))
+        else:
+            line("gravity", "")
+            line("lever_arm", "")
+        noise = self.noise
+        source = (f"{noise.still_seconds:.1f} s still" if noise.source == "still"
+                  else "third differences: no still stretch")
+        lines.append(f"imu_noise: accelerometer {noise.accelerometer_noise_density:.3g} "
+                     f"m/s^2/sqrt(Hz), gyroscope {noise.gyroscope_noise_density:.3g} "
+                     f"rad/s/sqrt(Hz) (from {source})")
+        return lines
+
+
+def _gravity(given: Array, force: SpecificForceFit | None, undetermined: dict[str, str]
+             ) -> Array:
+    """The gravity to write: the given one checked against the fit, else the fit's direction
+    at :data:`NOMINAL_GRAVITY`. ValueError when a given gravity contradicts the data."""
+    if force is None:
+        if not np.isfinite(given).all():
+            undetermined["gravity"] = "no visible mocap run long enough to fit it"
+        return given
+    fitted = force.gravity
+    low, high = GRAVITY_MAGNITUDE_RANGE
+    magnitude = float(np.linalg.norm(fitted))
+    if np.isfinite(given).all():
+        angle = angle_between_deg(given, fitted)
+        if angle > GRAVITY_TOLERANCE_DEG:
+            raise ValueError(f"gravity {np.round(given, 3).tolist()} from recording.yaml is "
+                             f"{angle:.0f} deg from the data's {np.round(fitted, 2).tolist()}: "
+                             "fix it or remove it to estimate it")
+        return given
+    if np.max(force.gravity_std) > MAX_GRAVITY_STD or not 0.8 * low <= magnitude <= 1.2 * high:
+        undetermined["gravity"] = (f"fitted {np.round(fitted, 2).tolist()} +- "
+                                   f"{np.round(force.gravity_std, 2).tolist()} m/s^2 is not "
+                                   "credible: give gravity in recording.yaml or --gravity")
+        return np.full(3, np.nan)
+    return np.asarray(fitted / magnitude * NOMINAL_GRAVITY)
+
+
+def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> SelfCalibration:
+    """Every quantity kfusion can observe in ``recording`` (its info's mount is ignored; a
+    finite ``info.gravity`` is checked, a NaN one estimated; the clock fields are ignored).
+
+    Raises ValueError when the clocks cannot be correlated (no overlap, no rotation) or a
+    given gravity contradicts the data.
+    """
+    correlation = coarse_clock_offset(recording, max_offset=max_offset)
+    clock_and_mount = calibrate_clock_and_mount(recording, correlation.offset)
+    fit = clock_and_mount.fit
+    undetermined = dict(clock_and_mount.undetermined)
+    try:
+        force: SpecificForceFit | None = fit_specific_force(recording, fit.offset, fit.drift_ppm,
+                                                            fit.imu_to_body)
+    except ValueError:
+        force = None
+    gravity = _gravity(np.asarray(recording.info.gravity, dtype=float), force, undetermined)
+    lever_arm = None
+    if force is not None and np.max(force.lever_arm_std) <= MAX_LEVER_ARM_STD:
+        lever_arm = force.lever_arm
+    elif force is not None:
+        undetermined["lever_arm"] = (
+            f"fitted {np.round(force.lever_arm * 1e3, 1).tolist()} +- "
+            f"{np.round(force.lever_arm_std * 1e3, 1).tolist()} mm: too little angular "
+            f"acceleration to pin it within {MAX_LEVER_ARM_STD * 1e3:g} mm (not written)")
+    else:
+        undetermined["lever_arm"] = "no visible mocap run long enough to fit it"
+    noise = estimate_noise(recording.imu)
+    mount = np.full(4, np.nan) if "imu_to_body" in undetermined else fit.imu_to_body
+    info = RecordingInfo(
+        imu_to_body=mount, gravity=gravity, name=recording.info.name, imu=recording.info.imu,
+        lever_arm=lever_arm,
+        imu_time_offset=0.0 if "imu_time_offset" in undetermined else fit.offset,
+        imu_clock_drift_ppm=0.0 if "imu_clock_drift_ppm" in undetermined else fit.drift_ppm,
+        imu_noise=ImuNoise(accelerometer_noise_density=noise.accelerometer_noise_density,
+                           gyroscope_noise_density=noise.gyroscope_noise_density))
+    return SelfCalibration(correlation=correlation, clock_and_mount=clock_and_mount,
+                           specific_force=force, noise=noise, info=info,
+                           undetermined=undetermined)

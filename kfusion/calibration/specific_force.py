@@ -1,0 +1,190 @@
+"""Gravity, lever arm and accelerometer bias: linear least squares on the specific force.
+
+With the clock and the mount known, the accelerometer at mocap time t reads (IMU at lever arm r
+from the rigid-body origin, body frame):
+
+    R_global_imu f = a_global - g + R_global_body (alpha x r + omega x (omega x r))
+                     + R_global_imu b_acc
+
+``a_global`` from the mocap position (low-passed, then central second differences), omega and
+alpha (body frame) from the gyroscope through the mount. Unknowns ``x = [g, r, b_acc]`` (9) enter
+linearly: ``y = A x`` with ``y = R_global_imu f - a_global`` and
+``A = [-I, R_global_body L(omega, alpha), R_global_imu]``, ``L = [alpha]x + [omega]x^2``. The same
+zero-phase low-pass filter is applied to ``y`` and to every column of ``A`` (a linear filter
+commutes with the linear model), so the doubly differentiated mocap noise is filtered out
+consistently. Edges of each visible run are trimmed where the filter rings.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import signal
+
+from kfusion.calibration.clock import mocap_to_imu_time
+from kfusion.conventions import matrix_from_wxyz
+from kfusion.recording import Recording, occlusion_runs
+
+Array = NDArray[np.float64]
+
+CUTOFF_HZ: Final = 4.0
+"""Hz: low-pass cut-off applied to both sides (arm motion lies below it; the doubly
+differentiated mocap noise above it)."""
+MIN_RUN_S: Final = 1.0
+"""s: shortest visible mocap run used."""
+TRIM_S: Final = 0.2
+"""s: trimmed at both ends of a run, where the zero-phase filter rings."""
+MAX_LEVER_ARM_STD: Final = 0.002
+"""m: a lever-arm axis fitted less precisely than this makes the lever arm undetermined."""
+MAX_BIAS_STD: Final = 0.05
+"""m/s^2: a bias fitted less precisely than this is confounded with gravity (too little change
+of orientation): the fit is repeated with the bias fixed at 0."""
+
+
+def cross_matrix(vectors: ArrayLike) -> Array:
+    """``[v]x`` (..., 3, 3) such that ``[v]x u = v x u``."""
+    v = np.asarray(vectors, dtype=float)
+    zero = np.zeros(v.shape[:-1])
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1),
+                     np.stack([-y, x, zero], -1)], -2)
+
+
+def lever_arm_matrix(angular_rate: ArrayLike, angular_acceleration: ArrayLike) -> Array:
+    """``L = [alpha]x + [omega]x [omega]x`` (n, 3, 3): ``L r = alpha x r + omega x (omega x r)``,
+    the acceleration of a point r on a rigid body relative to its origin (body frame)."""
+    omega = cross_matrix(angular_rate)
+    return np.asarray(cross_matrix(angular_acceleration) + omega @ omega)
+
+
+@dataclass(frozen=True)
+class SpecificForceFit:
+    """Result of :func:`fit_specific_force`.
+
+    Attributes:
+        gravity, gravity_std: (3,) m/s^2, global frame.
+        lever_arm, lever_arm_std: (3,) m, body frame.
+        accelerometer_bias, accelerometer_bias_std: (3,) m/s^2, IMU frame (0 and NaN when it
+            could not be separated from gravity).
+        residual_rms: RMS misfit per axis after the fit, m/s^2 (filtered).
+        residual_before_rms: the same with the lever arm and bias at 0 and the fitted gravity,
+            m/s^2.
+        samples: filtered samples used.
+    """
+
+    gravity: Array
+    gravity_std: Array
+    lever_arm: Array
+    lever_arm_std: Array
+    accelerometer_bias: Array
+    accelerometer_bias_std: Array
+    residual_rms: float
+    residual_before_rms: float
+    samples: int
+
+
+def _filter(values: Array, rate: float, cutoff: float) -> Array:
+    """Zero-phase 4th-order Butterworth low-pass along axis 0."""
+    b, a = signal.butter(4, cutoff, fs=rate)
+    return np.asarray(signal.filtfilt(b, a, values, axis=0))
+
+
+def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
+                          imu_to_body: ArrayLike, *, cutoff_hz: float = CUTOFF_HZ
+                          ) -> tuple[Array, Array]:
+    """The filtered linear system ``y (k, 3) = A (k, 3, 9) x`` of the module docstring, over
+    every visible mocap run of at least :data:`MIN_RUN_S` inside the IMU's span."""
+    imu, mocap = recording.imu, recording.mocap
+    R_body_imu = matrix_from_wxyz(imu_to_body)
+    angular_acceleration = np.gradient(imu.gyroscope, imu.t, axis=0)
+    rows_y, rows_a = [], []
+    for start, stop in occlusion_runs(~mocap.visible):  # runs of visible frames
+        t = mocap.t[start:stop]
+        if len(t) < 10 or t[-1] - t[0] < MIN_RUN_S:
+            continue
+        tau = mocap_to_imu_time(t, offset, drift_ppm)
+        inside = (tau >= imu.t[0]) & (tau <= imu.t[-1])
+        if not inside.all():
+            continue
+        rate = (len(t) - 1) / (t[-1] - t[0])
+        if cutoff_hz >= 0.45 * rate:
+            raise ValueError(f"cutoff_hz: expected below half the mocap rate ({rate:.0f} Hz), "
+                             f"got {cutoff_hz}")
+        position = _filter(mocap.position[start:stop], rate, cutoff_hz)
+        acceleration = np.gradient(np.gradient(position, t, axis=0), t, axis=0)
+
+        def at(values: Array, times: Array = tau) -> Array:
+            return np.column_stack([np.interp(times, imu.t, values[:, axis])
+                                    for axis in range(3)])
+
+        force, omega, alpha = at(imu.accelerometer), at(imu.gyroscope), at(angular_acceleration)
+        R_global_body = matrix_from_wxyz(mocap.quaternion[start:stop])
+        R_global_imu = R_global_body @ R_body_imu
+        lever = R_global_body @ lever_arm_matrix(omega @ R_body_imu.T, alpha @ R_body_imu.T)
+        y = np.einsum("nij,nj->ni", R_global_imu, force) - acceleration
+        design = np.concatenate([np.broadcast_to(-np.eye(3), lever.shape), lever, R_global_imu],
+                                axis=2)
+        # filter the IMU side like the mocap side (the acceleration is already filtered)
+        y = _filter(y + acceleration, rate, cutoff_hz) - acceleration
+        design = _filter(design.reshape(len(t), -1), rate, cutoff_hz).reshape(len(t), 3, 9)
+        keep = (t >= t[0] + TRIM_S) & (t <= t[-1] - TRIM_S)
+        rows_y.append(y[keep])
+        rows_a.append(design[keep])
+    if not rows_y:
+        raise ValueError(f"cannot fit gravity and lever arm: no visible mocap run of at least "
+                         f"{MIN_RUN_S:g} s inside the IMU's span")
+    return np.concatenate(rows_y), np.concatenate(rows_a)
+
+
+def solve_specific_force(y: Array, design: Array, *, fit_bias: bool = True,
+                         correlation: float = 1.0) -> tuple[Array, Array, Array]:
+    """Least squares of ``y = A x``; returns (x (9,), 1-sigma (9,), residual (k', 3) of the
+    inliers).
+
+    Without ``fit_bias`` the bias columns are dropped (x[6:] = 0, std NaN). ``correlation``
+    multiplies the covariance: filtered samples are not independent (about
+    ``rate / (2 cutoff)`` samples per independent one).
+    """
+    columns = 9 if fit_bias else 6
+    A = design[:, :, :columns].reshape(-1, columns)
+    b = y.reshape(-1)
+    solution, *_ = np.linalg.lstsq(A, b, rcond=None)
+    # one pass of outlier rejection: samples whose misfit exceeds 5 times the median (a mocap
+    # glitch or marker swap, spread by the filter) are dropped and the fit repeated
+    misfit = np.linalg.norm((b - A @ solution).reshape(-1, 3), axis=1)
+    inlier = np.repeat(misfit <= 5.0 * np.median(misfit), 3)
+    A, b = A[inlier], b[inlier]
+    solution, *_ = np.linalg.lstsq(A, b, rcond=None)
+    residual = b - A @ solution
+    sigma2 = float(residual @ residual) / max(len(b) - columns, 1)
+    covariance = np.linalg.pinv(A.T @ A) * sigma2 * correlation
+    x = np.zeros(9)
+    std = np.full(9, np.nan)
+    x[:columns] = solution
+    std[:columns] = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    return x, std, residual.reshape(-1, 3)
+
+
+def fit_specific_force(recording: Recording, offset: float, drift_ppm: float,
+                       imu_to_body: ArrayLike, *, cutoff_hz: float = CUTOFF_HZ
+                       ) -> SpecificForceFit:
+    """Gravity, lever arm and accelerometer bias (module docstring); the bias is dropped when
+    the orientation changes too little to separate it from gravity (:data:`MAX_BIAS_STD`)."""
+    y, design = specific_force_system(recording, offset, drift_ppm, imu_to_body,
+                                      cutoff_hz=cutoff_hz)
+    rate = 1.0 / float(np.median(np.diff(recording.mocap.t)))
+    correlation = max(1.0, rate / (2.0 * cutoff_hz))
+    x, std, residual = solve_specific_force(y, design, correlation=correlation)
+    if not np.max(std[6:]) <= MAX_BIAS_STD:
+        x, std, residual = solve_specific_force(y, design, fit_bias=False,
+                                                correlation=correlation)
+    before = y.reshape(-1) - design[:, :, :3].reshape(-1, 3) @ x[:3]
+    return SpecificForceFit(gravity=x[:3], gravity_std=std[:3], lever_arm=x[3:6],
+                            lever_arm_std=std[3:6], accelerometer_bias=x[6:],
+                            accelerometer_bias_std=std[6:],
+                            residual_rms=float(np.sqrt(np.mean(residual**2))),
+                            residual_before_rms=float(np.sqrt(np.mean(before**2))),
+                            samples=len(y))

@@ -1,0 +1,249 @@
+"""Self-calibration (kfusion.calibration) and the consistency diagnosis (kfusion check/track).
+
+Layers: each estimator on hand-made numbers; the whole chain on simulated recordings with a
+known clock, mount and lever arm; the diagnosis on every mistake it must name and on clean
+simulated and real (BROAD) recordings, which must pass.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from kfusion.calibration import calibrate_recording, on_mocap_clock
+from kfusion.calibration.clock import (
+    drift_from_window_offsets,
+    normalised_cross_correlation,
+    parabola_peak,
+)
+from kfusion.calibration.diagnosis import diagnose
+from kfusion.calibration.noise import third_difference_std
+from kfusion.calibration.specific_force import lever_arm_matrix
+from kfusion.cli import main
+from kfusion.conventions import imu_time_to_mocap, rotation_from_wxyz
+from kfusion.methods import track_recording
+from kfusion.recording import (
+    ImuSamples,
+    MocapFrames,
+    RecordingError,
+    info_to_dict,
+    parse_info,
+    read_info,
+    write_recording,
+)
+from kfusion.simulate import simulate
+from kfusion.tracker import Tracker
+
+
+def test_clock_model_by_hand():
+    # t_mocap = (1 + 100e-6) * 10 + 0.5 = 10.501
+    assert imu_time_to_mocap(10.0, 0.5, 100.0) == pytest.approx(10.501, abs=1e-12)
+    np.testing.assert_allclose(imu_time_to_mocap([0.0, 2.0], -1.0, 0.0), [-1.0, 1.0])
+
+
+def test_cross_correlation_finds_a_known_lag():
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal(500)
+    y = np.concatenate([np.zeros(7), x[:-7]])  # y[n] = x[n - 7]
+    mask = np.ones(500)
+    mask_y = mask.copy()
+    mask_y[:7] = 0
+    lags, r = normalised_cross_correlation(x, mask, y, mask_y, min_overlap=100)
+    assert lags[np.nanargmax(r)] == 7
+    assert np.nanmax(r) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_parabola_peak_by_hand():
+    # y = -(k - 0.25)^2 at k = -1, 0, 1: -1.5625, -0.0625, -0.5625 -> peak at 0.25
+    assert parabola_peak([-1.5625, -0.0625, -0.5625]) == pytest.approx(0.25)
+    assert parabola_peak([1.0, 1.0, 1.0]) == 0.0
+
+
+def test_drift_from_window_offsets_recovers_a_line():
+    tau = np.array([10.0, 20.0, 30.0, 40.0])
+    offsets = 0.137 + 50e-6 * tau  # 50 ppm
+    fit = drift_from_window_offsets(tau, offsets)
+    assert fit.offset == pytest.approx(0.137, abs=1e-12)
+    assert fit.drift_ppm == pytest.approx(50.0, abs=1e-6)
+
+
+def test_lever_arm_matrix_by_hand():
+    # omega = z, r = x: omega x (omega x r) = z x y = -x (centripetal); alpha = z: alpha x r = y
+    L = lever_arm_matrix([[0.0, 0.0, 1.0]], [[0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(L[0] @ [1.0, 0.0, 0.0], [-1.0, 1.0, 0.0], atol=1e-15)
+
+
+def test_third_differences_measure_white_noise_under_a_smooth_signal():
+    rng = np.random.default_rng(1)
+    t = np.arange(20000) / 200
+    values = np.column_stack([np.sin(t), 0.01 * t**2]) + 0.05 * rng.standard_normal((20000, 2))
+    np.testing.assert_allclose(third_difference_std(values), 0.05, rtol=0.05)
+
+
+@pytest.fixture(scope="module")
+def shifted():
+    """random_reach, 90 s, IMU clock 1.3 s behind and 60 ppm slow, 2 cm lever arm."""
+    return simulate("random_reach", seed=2, duration=90.0, imu_time_offset=1.3,
+                    imu_clock_drift_ppm=60.0, lever_arm=[0.02, -0.02, 0.01])
+
+
+def test_self_calibration_recovers_clock_mount_and_lever_arm(shifted):
+    recording = shifted.recording
+    unknown = dataclasses.replace(recording.info, imu_to_body=np.full(4, np.nan),
+                                  gravity=np.full(3, np.nan), lever_arm=None)
+    result = calibrate_recording(dataclasses.replace(recording, info=unknown))
+    info = result.info
+    assert abs(info.imu_time_offset - 1.3) < 1e-3
+    assert abs(info.imu_clock_drift_ppm - 60.0) < 10.0
+    mount_error = (rotation_from_wxyz(info.imu_to_body).inv()
+                   * rotation_from_wxyz(recording.info.imu_to_body)).magnitude()
+    assert np.degrees(mount_error) < 1.0
+    assert info.lever_arm is not None
+    assert np.max(np.abs(info.lever_arm - [0.02, -0.02, 0.01])) < 0.005
+    assert np.degrees(np.arccos(info.gravity @ [0, -9.81, 0] / 9.81**2)) < 1.0
+    assert 0.5 < info.imu_noise.accelerometer_noise_density / 300e-6 / 9.80665 < 2.0
+    assert result.complete and "imu_time_offset" not in result.undetermined
+
+
+def test_rotation_about_one_axis_leaves_the_mount_undetermined():
+    # the limb only turns about body z: the mount's rotation about it cannot be seen
+    rng = np.random.default_rng(3)
+    t = np.arange(0, 30, 0.01)
+    angle = np.cumsum(2.0 * np.sin(1.3 * t) * 0.01)
+    q_global_body = Rotation.from_rotvec(np.outer(angle, [0, 0, 1]))
+    R_body_imu = Rotation.from_euler("xyz", [20, 30, 40], degrees=True)
+    imu_t = np.arange(0, 30, 0.005)
+    rate = np.outer(np.interp(imu_t, t, 2.0 * np.sin(1.3 * t)), [0, 0, 1])
+    gyroscope = R_body_imu.inv().apply(rate) + 0.001 * rng.standard_normal(rate.shape)
+    f_global = np.tile([0.0, 0.0, 9.81], (len(imu_t), 1))
+    imu_q = Rotation.from_rotvec(np.outer(np.interp(imu_t, t, angle), [0, 0, 1])) * R_body_imu
+    accelerometer = imu_q.inv().apply(f_global)
+    recording = shifted_recording = simulate("circle", seed=0).recording
+    recording = dataclasses.replace(
+        shifted_recording, imu=ImuSamples(imu_t, accelerometer, gyroscope),
+        mocap=MocapFrames(t, np.zeros((len(t), 3)), q_global_body.as_quat(scalar_first=True)),
+        info=dataclasses.replace(shifted_recording.info, gravity=np.array([0, 0, -9.81])))
+    result = calibrate_recording(recording)
+    assert "imu_to_body" in result.undetermined
+    assert "one axis only" in result.undetermined["imu_to_body"]
+    assert not result.complete
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return simulate("pick_tool", seed=1).recording
+
+
+def _mistakes(recording):
+    info, mocap, imu = recording.info, recording.mocap, recording.imu
+    return {
+        r"IMU clock about 13[6-8] ms behind the mocap: run kfusion calibrate":
+            dataclasses.replace(recording, info=dataclasses.replace(info,
+                                                                    imu_time_offset=-0.137)),
+        "gravity sign flipped": dataclasses.replace(recording, info=dataclasses.replace(
+            info, gravity=-info.gravity)),
+        "gravity wrong axis": dataclasses.replace(recording, info=dataclasses.replace(
+            info, gravity=np.array([0.0, 0.0, -9.81]))),
+        "mount wrong": dataclasses.replace(recording, info=dataclasses.replace(
+            info, imu_to_body=np.array([1.0, 0.0, 0.0, 0.0]))),
+        "quaternion columns look like x, y, z, w": recording.with_mocap(MocapFrames(
+            mocap.t, mocap.position, mocap.quaternion[:, [1, 2, 3, 0]])),
+        "IMU time looks like ms": dataclasses.replace(recording, imu=ImuSamples(
+            imu.t * 1000, imu.accelerometer, imu.gyroscope)),
+        "no time overlap": dataclasses.replace(recording, imu=ImuSamples(
+            imu.t + 1000, imu.accelerometer, imu.gyroscope)),
+    }
+
+
+def test_a_clean_simulated_recording_passes(clean):
+    assert diagnose(clean).ok
+
+
+@pytest.mark.parametrize("expected", list(_mistakes(simulate("pick_tool", seed=1,
+                                                             duration=5).recording)))
+def test_the_diagnosis_names_each_mistake(clean, expected):
+    diagnosis = diagnose(_mistakes(clean)[expected])
+    assert len(diagnosis.problems) == 1
+    assert re.search(expected, diagnosis.problems[0]), diagnosis.problems[0]
+
+
+def test_every_broad_trial_passes_the_diagnosis():
+    try:
+        from kfusion.datasets import broad_trials
+        trials = broad_trials()
+    except ValueError:
+        pytest.skip("BROAD trials not found (../shared/data/broad): skipping the real-data check")
+    from kfusion.readers.broad import read_broad
+
+    for path in trials:
+        diagnosis = diagnose(read_broad(path, mocap_step=3))
+        assert diagnosis.ok, (path.stem, diagnosis.problems)
+
+
+def test_recording_info_clock_and_noise_keys():
+    data = {"imu_to_body": [1, 0, 0, 0], "gravity": [0, -9.81, 0], "imu_time_offset": 0.137,
+            "imu_clock_drift_ppm": -20, "imu_noise": {"accelerometer_noise_density": 0.003}}
+    info = parse_info(data)
+    assert info.imu_time_offset == 0.137 and info.imu_clock_drift_ppm == -20.0
+    assert info.imu_noise.overrides() == {"accelerometer_noise_density": 0.003}
+    assert info_to_dict(parse_info(info_to_dict(info))) == info_to_dict(info)
+    for key, value, message in (
+            ("imu_time_offset", "soon", r"expected a number \(s\)"),
+            ("imu_clock_drift_ppm", 1e6, r"within \+-10000"),
+            ("imu_noise", {"gyro": 1.0}, "unknown key"),
+            ("imu_noise", {"gyroscope_noise_density": -1.0}, "positive")):
+        with pytest.raises(RecordingError, match=message):
+            parse_info({**data, key: value})
+    with pytest.raises(RecordingError, match="kfusion calibrate DIR --out DIR/recording.yaml"):
+        parse_info({"gravity": [0, -9.81, 0]})
+    assert np.isnan(parse_info({}, require_mount=False).imu_to_body).all()
+
+
+def test_every_method_and_the_tracker_honour_the_clock_model(shifted):
+    synced = on_mocap_clock(dataclasses.replace(shifted.recording, info=dataclasses.replace(
+        shifted.recording.info, imu_time_offset=1.3, imu_clock_drift_ppm=60.0)))
+    np.testing.assert_allclose(synced.imu.t, shifted.truth.imu_t, atol=1e-9)
+    calibrated = dataclasses.replace(shifted.recording, info=dataclasses.replace(
+        shifted.recording.info, imu_time_offset=1.3, imu_clock_drift_ppm=60.0))
+    for method in ("baseline", "kalman", "smoother"):
+        via_info = track_recording(calibrated, method)
+        direct = track_recording(synced, method)
+        np.testing.assert_array_equal(via_info.position, direct.position)
+    tracker = Tracker.from_recording_info(calibrated.info)
+    reference = Tracker.from_recording_info(synced.info)
+    imu = calibrated.imu
+    for k in range(200):
+        a = tracker.push_imu(imu.t[k], imu.accelerometer[k], imu.gyroscope[k])
+        b = reference.push_imu(synced.imu.t[k], imu.accelerometer[k], imu.gyroscope[k])
+        assert a == b
+    assert tracker.health.as_dict() == reference.health.as_dict()
+
+
+def test_calibrate_check_and_track_commands(tmp_path, capsys):
+    simulation = simulate("random_reach", seed=4, duration=60.0, imu_time_offset=-0.137)
+    folder = write_recording(simulation.recording, tmp_path / "recording")
+    # check and track refuse the unsynchronised recording, naming the fix
+    assert main(["check", str(folder)]) == 2
+    assert re.search("IMU clock about 13[6-8] ms ahead of the mocap: run kfusion calibrate",
+                     capsys.readouterr().err)
+    out = tmp_path / "track.csv"
+    assert main(["track", str(folder), "--out", str(out)]) == 2
+    assert "--force" in capsys.readouterr().err and not out.exists()
+    assert main(["track", str(folder), "--out", str(out), "--force"]) == 0
+    capsys.readouterr()
+    # calibrate from imu.csv and mocap.csv alone
+    (folder / "recording.yaml").unlink()
+    assert main(["check", str(folder)]) == 2
+    assert main(["calibrate", str(folder), "--out", str(folder / "recording.yaml")]) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"imu_time_offset: -13[6-8]\.\d+ ms \+- ", printed), printed
+    info = read_info(folder / "recording.yaml")
+    assert abs(info.imu_time_offset + 0.137) < 1e-3
+    assert yaml.safe_load((folder / "recording.yaml").read_text())["imu_noise"]
+    assert main(["check", str(folder)]) == 0
+    assert main(["track", str(folder), "--out", str(out)]) == 0
