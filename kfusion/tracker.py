@@ -66,9 +66,11 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import math
+import threading
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache
 from numbers import Real
@@ -81,7 +83,6 @@ import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from kfusion.conventions import (
-    BRIDGED,
     GRAVITY_MAGNITUDE_RANGE,
     LOST,
     QUATERNION_NORM_TOLERANCE,
@@ -90,6 +91,19 @@ from kfusion.conventions import (
 from kfusion.kalman.filter import ACCEPTED, GATED, OCCLUDED, REACQUIRED
 from kfusion.profiles import ImuProfile, imu_profile
 from kfusion.recording import RecordingInfo
+from kfusion.streamhealth import (
+    DEFAULT_MAX_TIME_JUMP_S,
+    IMPLAUSIBLE,
+    REBASE,
+    ImuWatch,
+    TimeGuard,
+    dead_reckoning_until,
+    status_durations,
+    tracking_status,
+)
+
+__all__ = ["Estimate", "Health", "PushOutcome", "Tracker", "TrackerOptions",
+           "TrackerSnapshot", "position_bound", "status_durations", "tracking_status"]
 
 # ---------------------------------------------------------------------------------------------
 # Reasons (the strings of PushOutcome.reason and the keys of the health counters)
@@ -106,10 +120,13 @@ DUPLICATE: Final = "duplicate"
 CONFLICTING_DUPLICATE: Final = "conflicting_duplicate"
 TOO_LATE: Final = "too_late"
 BAD_QUATERNION: Final = "bad_quaternion"
+IMPLAUSIBLE_TIME: Final = "implausible_time"
+"""A stamp implausibly far ahead of both streams (:class:`kfusion.streamhealth.TimeGuard`)."""
 
-IMU_REJECTIONS: Final = (NON_FINITE, OUT_OF_ORDER, DUPLICATE, CONFLICTING_DUPLICATE, TOO_LATE)
+IMU_REJECTIONS: Final = (NON_FINITE, OUT_OF_ORDER, DUPLICATE, CONFLICTING_DUPLICATE, TOO_LATE,
+                         IMPLAUSIBLE_TIME)
 MOCAP_REJECTIONS: Final = (GATED, NON_FINITE, BAD_QUATERNION, OUT_OF_ORDER, DUPLICATE,
-                           CONFLICTING_DUPLICATE, TOO_LATE)
+                           CONFLICTING_DUPLICATE, TOO_LATE, IMPLAUSIBLE_TIME)
 METHODS: Final = ("kalman", "baseline")
 DEFAULT_CONFIDENCE: Final = 0.99
 
@@ -131,7 +148,7 @@ class PushOutcome:
             updated it). False for rejections, skipped duplicates and occluded frames.
         reason: one of ``accepted``, ``saturated`` (IMU, fused but flagged), ``reacquired``,
             ``occluded``, ``gated``, ``non_finite``, ``out_of_order``, ``duplicate``,
-            ``conflicting_duplicate``, ``too_late``, ``bad_quaternion``.
+            ``conflicting_duplicate``, ``too_late``, ``bad_quaternion``, ``implausible_time``.
     """
 
     accepted: bool
@@ -184,7 +201,10 @@ class Health:
         imu_accepted: IMU samples fused (saturated ones included).
         imu_rejected: reason -> count (``IMU_REJECTIONS``); accepted + rejected == pushed.
         imu_saturated: fused samples with an accelerometer axis at its range limit.
-        imu_dropouts: intervals between fused IMU samples longer than the dropout threshold.
+        imu_dropouts: IMU outages: intervals of more than ``imu_dropout_s`` without an IMU
+            sample, each counted once, whether a later sample ends it or mocap frames arrive
+            while the IMU is silent (an IMU that never delivers counts once)
+            (:class:`kfusion.streamhealth.ImuWatch`).
         longest_imu_interval_s: longest interval between fused IMU samples, s.
         mocap_pushed: push_mocap calls that passed the shape/type check.
         mocap_fused: fixes fused (re-acquisitions included).
@@ -200,6 +220,11 @@ class Health:
         state_resets: times a non-finite estimator state forced a restart.
         replays: samples that arrived behind the other stream and were fused by replay.
         resets: calls to :meth:`Tracker.reset`.
+        orientation_gated: mocap orientations rejected by the gate against the gyroscope (the
+            fix's position was still used; Kalman only).
+        time_rebases: times consistent samples showed the clock really jumped (or the newest
+            time was itself a glitch) and the streams restarted from the new time
+            (:class:`kfusion.streamhealth.TimeGuard`).
     """
 
     imu_pushed: int
@@ -222,6 +247,8 @@ class Health:
     state_resets: int
     replays: int
     resets: int
+    orientation_gated: int = 0
+    time_rebases: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         """Plain nested dict (for logging or YAML/JSON)."""
@@ -244,16 +271,21 @@ class TrackerOptions:
             checkpoint is also taken after every mocap frame). > 0.
         accelerometer_range: m/s^2; a sample with an axis at 99.9 % of it or beyond is flagged
             ``saturated``. None: the estimator's (Kalman parameters) or the IMU profile's range.
+        max_time_jump_s: s; a stamp more than this ahead of the newest time of both streams is
+            rejected ``implausible_time`` unless consistent samples confirm the jump
+            (:class:`kfusion.streamhealth.TimeGuard`). > 0.
     """
 
     fix_timeout_s: float = 0.05
     max_delay_s: float = 0.1
     checkpoint_interval_s: float = 0.02
     accelerometer_range: float | None = None
+    max_time_jump_s: float = DEFAULT_MAX_TIME_JUMP_S
 
     def __post_init__(self) -> None:
         for name, positive in (("fix_timeout_s", True), ("max_delay_s", False),
-                               ("checkpoint_interval_s", True), ("accelerometer_range", True)):
+                               ("checkpoint_interval_s", True), ("accelerometer_range", True),
+                               ("max_time_jump_s", True)):
             value = getattr(self, name)
             if value is None and name == "accelerometer_range":
                 continue
@@ -333,41 +365,6 @@ def position_bound(covariance: ArrayLike, confidence: float = DEFAULT_CONFIDENCE
     return math.sqrt(max(largest, 0.0) * _chi2_3_quantile(float(confidence)))
 
 
-def tracking_status(time_since_fix: float, last_frame_fused: bool, *, fix_timeout_s: float,
-                    max_bridge_s: float) -> str:
-    """The status rule (``time_since_fix`` is inf before the first fix):
-
-        lost     if time_since_fix > max_bridge_s
-        tracked  if the last frame was fused and time_since_fix <= fix_timeout_s
-        bridged  otherwise
-    """
-    if not time_since_fix <= max_bridge_s:
-        return LOST
-    if last_frame_fused and time_since_fix <= fix_timeout_s:
-        return TRACKED
-    return BRIDGED
-
-
-def status_durations(start: float, end: float, fix_time: float, last_frame_fused: bool, *,
-                     fix_timeout_s: float, max_bridge_s: float) -> tuple[float, float, float]:
-    """Time (s) spent tracked, bridged and lost over [start, end] with no new fix inside.
-
-    With f = fix_time (``-inf`` before any fix), :func:`tracking_status` is tracked on
-    [f, f + fix_timeout_s] (only if the last frame was fused), bridged up to f + max_bridge_s,
-    and lost after; the result is the length of each of those intervals within [start, end].
-    """
-    tracked_end = fix_time + (fix_timeout_s if last_frame_fused else 0.0)
-    bridged_end = fix_time + max_bridge_s
-
-    def overlap(low: float, high: float) -> float:
-        return max(0.0, min(end, high) - max(start, low))
-
-    tracked = overlap(fix_time, tracked_end) if last_frame_fused else 0.0
-    bridged = overlap(tracked_end, bridged_end)
-    lost = (end - start) - tracked - bridged
-    return tracked, bridged, max(lost, 0.0)
-
-
 def _read_only(array: NDArray[np.float64]) -> NDArray[np.float64]:
     array.flags.writeable = False
     return array
@@ -403,7 +400,10 @@ def _time(where: str, t: object) -> float:
             return float(t)
         raise ValueError(f"{where}: t: expected a time in s (a real number), got "
                          f"{type(t).__name__}")
-    return float(t)  # type: ignore[arg-type]
+    try:
+        return float(t)  # type: ignore[arg-type]
+    except OverflowError:  # an int (or Fraction) beyond the float range: an infinite time
+        return math.inf if t > 0 else -math.inf  # type: ignore[operator]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -440,6 +440,10 @@ class _Estimator(Protocol):
 
     def resets(self) -> int: ...
 
+    def dead_reckoning_until(self) -> float: ...
+
+    def orientation_gated(self) -> int: ...
+
     def snapshot(self) -> object: ...
 
     def restore(self, snapshot: object) -> None: ...
@@ -459,17 +463,33 @@ class _BaselineEstimator:
         self.max_bridge_s = float(params.max_bridge_s)
         self.imu_dropout_s = 0.1
         self.accelerometer_range = accelerometer_range
+        self._imu_time: float | None = None
+        self._outage_since_fix = False
 
     def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
+        if self._imu_time is not None and t - self._imu_time > self.imu_dropout_s:
+            self._outage_since_fix = True  # the paper's method dead-reckons across it
+        self._imu_time = t
         self._tracker.push_imu(t, accelerometer, gyroscope)
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str:
+        if self._imu_time is None or t - self._imu_time > self.imu_dropout_s:
+            self._outage_since_fix = True
         if position is None or quaternion is None:
             # the paper's method needs the orientation at every fix
             self._tracker.push_mocap(t, None, None)
             return OCCLUDED
         self._tracker.push_mocap(t, position, quaternion)
+        self._outage_since_fix = False
         return ACCEPTED
+
+    def dead_reckoning_until(self) -> float:
+        """As :func:`kfusion.streamhealth.dead_reckoning_until`, kept around the paper's
+        method (which itself dead-reckons whatever the IMU does)."""
+        return dead_reckoning_until(self._imu_time, self.imu_dropout_s, self._outage_since_fix)
+
+    def orientation_gated(self) -> int:
+        return 0
 
     def read(self, t: float) -> _Reading | None:
         output = self._tracker.estimate(t)
@@ -486,10 +506,11 @@ class _BaselineEstimator:
         return 0
 
     def snapshot(self) -> object:
-        return copy.deepcopy(self._tracker)
+        return copy.deepcopy((self._tracker, self._imu_time, self._outage_since_fix))
 
     def restore(self, snapshot: object) -> None:
-        self._tracker = copy.deepcopy(snapshot)  # type: ignore[assignment]
+        self._tracker, self._imu_time, self._outage_since_fix = copy.deepcopy(
+            snapshot)  # type: ignore[misc]
 
 
 class _KalmanEstimator:
@@ -532,6 +553,12 @@ class _KalmanEstimator:
     def resets(self) -> int:
         """Times the fusion forgot an overflowing state by itself (its ``resets`` counter)."""
         return int(self._fusion.counters["resets"])
+
+    def dead_reckoning_until(self) -> float:
+        return self._fusion.dead_reckoning_until()
+
+    def orientation_gated(self) -> int:
+        return int(self._fusion.counters["orientation_gated"])
 
     def snapshot(self) -> object:
         return self._fusion.snapshot()
@@ -599,8 +626,19 @@ class _Stream:
     accepted: int = 0
     rejected: dict[str, int] = field(default_factory=dict)
     saturated: int = 0
-    dropouts: int = 0
     longest_interval_s: float = 0.0
+
+
+def _locked(method: Any) -> Any:
+    """Run a :class:`Tracker` method holding the tracker's lock (calls from several threads
+    are serialised: each sees the state before or after another, never half-way)."""
+
+    @functools.wraps(method)
+    def wrapper(self: Tracker, *args: Any, **kwargs: Any) -> Any:
+        with self._lock:
+            return method(self, *args, **kwargs)
+
+    return wrapper
 
 
 # ---------------------------------------------------------------------------------------------
@@ -623,6 +661,13 @@ class Tracker:
             their fields (None: defaults from ``imu``).
         lever_arm: (3,) IMU position in the body frame, m (Kalman only), or None.
         options: :class:`TrackerOptions` or a mapping of its fields.
+        clock: a function returning the current time in s *on the stamps' clock* (e.g.
+            ``time.monotonic`` when the samples are stamped with it). With it,
+            :meth:`estimate` without ``t`` is the estimate now; without it, :meth:`estimate`
+            needs ``t`` (an estimate is never presented as current when it is old).
+
+    Thread safety: every public method holds the tracker's lock, and :meth:`estimate` and
+    :attr:`health` do not change the state, so one thread may push while others read.
 
     Raises:
         ValueError: for any malformed argument, naming what was expected and what was given.
@@ -638,7 +683,13 @@ class Tracker:
         params: Any = None,
         lever_arm: ArrayLike | None = None,
         options: TrackerOptions | Mapping[str, Any] | None = None,
+        clock: Callable[[], float] | None = None,
     ) -> None:
+        if clock is not None and not callable(clock):
+            raise ValueError(f"Tracker: clock: expected a function returning the time in s, "
+                             f"got {type(clock).__name__}")
+        self._lock = threading.RLock()
+        self._clock = clock
         q_body_imu = _vector("Tracker", "imu_to_body", imu_to_body, 4, "[w, x, y, z]")
         norm = float(np.linalg.norm(q_body_imu))
         if not np.isfinite(q_body_imu).all() or abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
@@ -679,6 +730,8 @@ class Tracker:
         if range_ is None:
             range_ = self._estimator.accelerometer_range
         self._saturation_level = 0.999 * range_
+        self._watch = ImuWatch(self._estimator.imu_dropout_s)
+        self._guard = TimeGuard(options.max_time_jump_s)
         self._resets = 0
         self._replays = 0
         self._log: deque[tuple] = deque()
@@ -760,6 +813,7 @@ class Tracker:
 
     # ---- public API -------------------------------------------------------------------------
 
+    @_locked
     def push_imu(self, t: float, acc: ArrayLike, gyro: ArrayLike) -> PushOutcome:
         """Feed one IMU sample.
 
@@ -785,17 +839,17 @@ class Tracker:
         if not (isfinite(t) and isfinite(a0) and isfinite(a1) and isfinite(a2)
                 and isfinite(g0) and isfinite(g1) and isfinite(g2)):
             return self._reject(stream, NON_FINITE)
+        if self._implausible(t, _IMU):
+            return self._reject(stream, IMPLAUSIBLE_TIME)
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (accelerometer, gyroscope))
         saturated = max(abs(a0), abs(a1), abs(a2)) >= self._saturation_level
         if self._fuse((t, _IMU, accelerometer, (g0, g1, g2), saturated)) is None:
             return self._reject(stream, TOO_LATE)
         interval = t - stream.last_t  # inf for the first sample (after a reset too)
-        if interval != math.inf:
-            if interval > stream.longest_interval_s:
-                stream.longest_interval_s = interval
-            if interval > self._estimator.imu_dropout_s:
-                stream.dropouts += 1
+        if interval != math.inf and interval > stream.longest_interval_s:
+            stream.longest_interval_s = interval
+        self._watch.imu(t)
         stream.last_t = t
         stream.last_values = (accelerometer, gyroscope)
         stream.accepted += 1
@@ -804,6 +858,7 @@ class Tracker:
             return _FUSED_SATURATED
         return _FUSED
 
+    @_locked
     def push_mocap(self, t: float, position: ArrayLike | None,
                    quaternion: ArrayLike | None) -> PushOutcome:
         """Feed one mocap frame.
@@ -832,6 +887,8 @@ class Tracker:
         components = rotation.tolist()
         if not math.isfinite(t) or any(map(math.isinf, values + components)):
             return self._reject(stream, NON_FINITE)
+        if self._implausible(t, _MOCAP):
+            return self._reject(stream, IMPLAUSIBLE_TIME)
         if any(map(math.isnan, values)):
             point, rotation = nan_position, np.full(4, np.nan)
         elif any(map(math.isnan, components)):
@@ -847,29 +904,40 @@ class Tracker:
             return self._reject(stream, TOO_LATE)
         stream.last_t, stream.last_values = t, (point, rotation)
         stream.accepted += 1
+        self._watch.mocap(t)
         return PushOutcome(reason in (ACCEPTED, REACQUIRED), reason)
 
+    @_locked
     def estimate(self, t: float | None = None) -> Estimate:
-        """The estimate at ``t`` (default: the newest fused sample's time; NaN before any).
+        """The estimate at ``t``, the caller's current time in s on the stamps' clock.
 
-        A later ``t`` extrapolates with the last IMU sample held (zero-order hold) and ages
-        ``time_since_fix``; the state is not changed.
+        ``t`` may be omitted only for a tracker built with a ``clock``: the estimate is then at
+        ``clock()`` (or at the newest fused sample, if that is later). Without either there is
+        no "now", and an estimate at the newest sample's time would look current after the
+        streams stopped: ValueError. A later ``t`` than the newest sample extrapolates with the
+        last IMU sample held (for at most ``imu_dropout_s``; later a gap is ``lost``) and ages
+        ``time_since_fix``; the state is not changed. NaN position before any fix.
 
         Raises:
-            ValueError: ``t`` not a real number, or earlier than the newest fused sample.
+            ValueError: ``t`` missing without a clock, not a real number, or earlier than the
+                newest fused sample.
         """
         book = self._book
         if t is None:
-            t = math.nan if book.key is None else book.key[0]
+            if self._clock is None:
+                raise ValueError("estimate: t: expected the current time in s (the stamps' "
+                                 "clock), got none; pass estimate(now) or build the Tracker "
+                                 "with clock=")
+            t = _time("estimate", self._clock())
+            if book.key is not None and not t >= book.key[0]:
+                t = book.key[0]
         else:
             t = _time("estimate", t)
             if book.key is not None and not t >= book.key[0]:
                 raise ValueError(f"estimate: t: expected a time >= {book.key[0]!r} s (the "
                                  f"newest fused sample), got {t!r}")
         since = t - book.fix_time
-        status = tracking_status(since, book.last_frame_fused,
-                                 fix_timeout_s=self.options.fix_timeout_s,
-                                 max_bridge_s=self.max_bridge_s)
+        status = self._status_at(t)
         reading = None
         if status != LOST and math.isfinite(t):
             try:
@@ -890,6 +958,14 @@ class Tracker:
                         status=status, time_since_fix=since, method=self.method)
 
     @property
+    @_locked
+    def newest_time(self) -> float:
+        """Time (s) of the newest fused sample; NaN before any. Not "now": after the streams
+        stop it stays put, so pass the caller's current time to :meth:`estimate`."""
+        return math.nan if self._book.key is None else self._book.key[0]
+
+    @property
+    @_locked
     def health(self) -> Health:
         """The health counters now (a frozen copy)."""
         imu, mocap, book = self._imu, self._mocap, self._book
@@ -902,7 +978,7 @@ class Tracker:
         return Health(
             imu_pushed=imu.pushed, imu_accepted=imu.accepted,
             imu_rejected=MappingProxyType(dict(imu.rejected)), imu_saturated=imu.saturated,
-            imu_dropouts=imu.dropouts, longest_imu_interval_s=imu.longest_interval_s,
+            imu_dropouts=self._watch.outages, longest_imu_interval_s=imu.longest_interval_s,
             mocap_pushed=mocap.pushed, mocap_fused=counts.mocap_fused,
             mocap_occluded=counts.mocap_occluded,
             mocap_rejected=MappingProxyType(mocap_rejected), gate_rejections=counts.gated,
@@ -910,8 +986,11 @@ class Tracker:
             time_bridged_s=counts.time_bridged_s, time_lost_s=counts.time_lost_s,
             longest_gap_s=gap, lost_transitions=counts.lost_transitions,
             state_resets=counts.state_resets, replays=self._replays, resets=self._resets,
+            orientation_gated=self._estimator.orientation_gated(),
+            time_rebases=self._guard.rebases,
         )
 
+    @_locked
     def reset(self) -> None:
         """Forget the state and the stream history, as if newly constructed; the health
         counters keep counting (``health.resets`` counts the calls)."""
@@ -919,6 +998,7 @@ class Tracker:
         self._estimator = self._new_estimator()
         self._start_streams(keep_counters=True)
 
+    @_locked
     def snapshot(self) -> TrackerSnapshot:
         """A deep copy of the whole state (estimator, stream history, buffers, counters).
 
@@ -927,12 +1007,14 @@ class Tracker:
         state = copy.deepcopy({
             "estimator": self._estimator.snapshot(), "book": self._book, "imu": self._imu,
             "mocap": self._mocap, "log": self._log, "checkpoints": self._checkpoints,
-            "resets": self._resets, "replays": self._replays,
+            "resets": self._resets, "replays": self._replays, "watch": self._watch,
+            "guard": self._guard,
         })
         newest = math.nan if self._book.key is None else self._book.key[0]
         return TrackerSnapshot(method=self.method, t=newest,
                                _configuration=self._configuration(), _state=state)
 
+    @_locked
     def restore(self, snapshot: TrackerSnapshot) -> None:
         """Continue from ``snapshot`` (taken from a tracker built with the same arguments).
 
@@ -951,7 +1033,9 @@ class Tracker:
         self._imu, self._mocap = state["imu"], state["mocap"]
         self._log, self._checkpoints = state["log"], state["checkpoints"]
         self._resets, self._replays = state["resets"], state["replays"]
+        self._watch, self._guard = state["watch"], state["guard"]
 
+    @_locked
     def __repr__(self) -> str:
         newest = None if self._book.key is None else self._book.key[0]
         return f"Tracker(method={self.method!r}, t={newest!r}, status={self._book.status!r})"
@@ -969,6 +1053,7 @@ class Tracker:
             for stream in (self._imu, self._mocap):
                 stream.last_t, stream.last_values = -math.inf, None
             self._book = _Book(counts=self._book.counts)
+            self._watch.forget()
         else:
             self._imu = _Stream(rejected=dict.fromkeys(IMU_REJECTIONS, 0))
             self._mocap = _Stream(rejected=dict.fromkeys(MOCAP_REJECTIONS, 0))
@@ -978,6 +1063,18 @@ class Tracker:
         if self.options.max_delay_s > 0:
             self._checkpoints.append(_Checkpoint((-math.inf, -1), self._estimator.snapshot(),
                                                  self._book.copy()))
+
+    def _implausible(self, t: float, stream: int) -> bool:
+        """Judge a finite stamp against the newest time of both streams
+        (:class:`kfusion.streamhealth.TimeGuard`): True to reject it. A confirmed jump restarts
+        the streams from the new time (counted in ``health.time_rebases``)."""
+        imu, mocap = self._imu.last_t, self._mocap.last_t
+        seen = {index for index, last in ((_IMU, imu), (_MOCAP, mocap)) if last != -math.inf}
+        verdict = self._guard.check(t, stream, max(imu, mocap), seen)
+        if verdict == REBASE:
+            self._estimator = self._new_estimator()
+            self._start_streams(keep_counters=True)
+        return verdict == IMPLAUSIBLE
 
     def _reject(self, stream: _Stream, reason: str) -> PushOutcome:
         stream.rejected[reason] += 1
@@ -1112,10 +1209,11 @@ class Tracker:
         book = self._book
         since = t - book.fix_time
         if book.last_frame_fused and since <= self.options.fix_timeout_s:
-            return TRACKED  # fast path of tracking_status (fix_timeout_s < max_bridge_s)
+            return TRACKED  # fast path of tracking_status
         return tracking_status(since, book.last_frame_fused,
                                fix_timeout_s=self.options.fix_timeout_s,
-                               max_bridge_s=self.max_bridge_s)
+                               max_bridge_s=self.max_bridge_s,
+                               beyond_dead_reckoning=t > self._estimator.dead_reckoning_until())
 
     def _account(self, start: float, end: float) -> None:
         """Add the time from ``start`` to ``end`` (no fix inside) to the status durations."""
@@ -1125,7 +1223,8 @@ class Tracker:
             return
         tracked, bridged, lost = status_durations(
             start, end, book.fix_time, book.last_frame_fused,
-            fix_timeout_s=self.options.fix_timeout_s, max_bridge_s=self.max_bridge_s)
+            fix_timeout_s=self.options.fix_timeout_s, max_bridge_s=self.max_bridge_s,
+            reckoning_until=self._estimator.dead_reckoning_until())
         book.counts.time_tracked_s += tracked
         book.counts.time_bridged_s += bridged
         book.counts.time_lost_s += lost
