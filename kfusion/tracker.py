@@ -98,6 +98,7 @@ from kfusion.streamhealth import (
     ImuWatch,
     TimeGuard,
     dead_reckoning_until,
+    hold_horizon,
     status_durations,
     tracking_status,
 )
@@ -464,16 +465,19 @@ class _BaselineEstimator:
         self.imu_dropout_s = 0.1
         self.accelerometer_range = accelerometer_range
         self._imu_time: float | None = None
+        self._imu_interval: float | None = None
         self._outage_since_fix = False
 
     def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
-        if self._imu_time is not None and t - self._imu_time > self.imu_dropout_s:
-            self._outage_since_fix = True  # the paper's method dead-reckons across it
+        if self._imu_time is not None:
+            self._imu_interval = t - self._imu_time
+            if self._imu_interval > self.imu_dropout_s:
+                self._outage_since_fix = True  # the paper's method dead-reckons across it
         self._imu_time = t
         self._tracker.push_imu(t, accelerometer, gyroscope)
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str:
-        if self._imu_time is None or t - self._imu_time > self.imu_dropout_s:
+        if t > self.dead_reckoning_until():
             self._outage_since_fix = True
         if position is None or quaternion is None:
             # the paper's method needs the orientation at every fix
@@ -486,7 +490,9 @@ class _BaselineEstimator:
     def dead_reckoning_until(self) -> float:
         """As :func:`kfusion.streamhealth.dead_reckoning_until`, kept around the paper's
         method (which itself dead-reckons whatever the IMU does)."""
-        return dead_reckoning_until(self._imu_time, self.imu_dropout_s, self._outage_since_fix)
+        return dead_reckoning_until(self._imu_time, hold_horizon(self._imu_interval,
+                                                                 self.imu_dropout_s),
+                                    self._outage_since_fix)
 
     def orientation_gated(self) -> int:
         return 0
@@ -506,11 +512,12 @@ class _BaselineEstimator:
         return 0
 
     def snapshot(self) -> object:
-        return copy.deepcopy((self._tracker, self._imu_time, self._outage_since_fix))
+        return copy.deepcopy((self._tracker, self._imu_time, self._imu_interval,
+                              self._outage_since_fix))
 
     def restore(self, snapshot: object) -> None:
-        self._tracker, self._imu_time, self._outage_since_fix = copy.deepcopy(
-            snapshot)  # type: ignore[misc]
+        (self._tracker, self._imu_time, self._imu_interval,
+         self._outage_since_fix) = copy.deepcopy(snapshot)  # type: ignore[misc]
 
 
 class _KalmanEstimator:

@@ -277,10 +277,11 @@ def test_dropout_past_max_bridge_is_lost_then_reacquired():
     assert np.isnan(estimate.position).all() and estimate.bound() == math.inf
     health = tracker.health
     assert health.lost_transitions == 1
-    # the last IMU sample (t = 1.0) is held for imu_dropout_s = 0.1 s: bridged after the
-    # tracked 0.05 s until 1.1 s, then lost (no IMU: nothing is dead-reckoned)
-    assert health.time_lost_s == pytest.approx(1.4)
-    assert health.time_bridged_s == pytest.approx(0.1 - 0.05)
+    # the last fix and IMU sample are at 1.0 s: tracked for fix_timeout_s = 0.05 s, and the
+    # IMU sample is held only 20 ms (kfusion.streamhealth.hold_horizon), so never bridged:
+    # lost from 1.05 s (no IMU: nothing is dead-reckoned)
+    assert health.time_lost_s == pytest.approx(1.45)
+    assert health.time_bridged_s == 0.0
     outcome = tracker.push_mocap(2.5, HOME, IDENTITY)
     assert (outcome.accepted, outcome.reason) == (True, "reacquired")
     assert tracker.estimate(tracker.newest_time).status == "tracked"

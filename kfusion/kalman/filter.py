@@ -224,6 +224,7 @@ class KalmanSnapshot:
     counters: dict[str, int] = field(default_factory=dict)
     outage_since_fix: bool = False
     last_orientation_fix: float | None = None
+    imu_interval: float | None = None
 
 
 def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
@@ -310,6 +311,7 @@ class KalmanFusion:
         self._last_fix: float | None = None
         self._last_nis = math.nan
         self._outage_since_fix = False  # an interval without IMU since the last fix
+        self._imu_interval: float | None = None  # the last interval between IMU samples, s
         self._last_orientation_fix: float | None = None
         self._counters = dict.fromkeys(COUNTER_NAMES, 0)
         # smoother support (see kfusion.kalman.smoother): product of the transitions since the
@@ -347,8 +349,13 @@ class KalmanFusion:
     def dead_reckoning_until(self) -> float:
         """Time (s) up to which the state is IMU-propagated since the last fix
         (:func:`kfusion.streamhealth.dead_reckoning_until`): later, a gap is ``lost``."""
-        return streamhealth.dead_reckoning_until(self._imu_time, self.params.imu_dropout_s,
+        return streamhealth.dead_reckoning_until(self._imu_time, self._hold_s(),
                                                  self._outage_since_fix)
+
+    def _hold_s(self) -> float:
+        """How long the last IMU sample may be held (:func:`kfusion.streamhealth.
+        hold_horizon`)."""
+        return streamhealth.hold_horizon(self._imu_interval, self.params.imu_dropout_s)
 
     @property
     def estimates_lever_arm(self) -> bool:
@@ -483,6 +490,7 @@ class KalmanFusion:
             counters=dict(self._counters),
             outage_since_fix=self._outage_since_fix,
             last_orientation_fix=self._last_orientation_fix,
+            imu_interval=self._imu_interval,
         )
 
     def restore(self, snapshot: KalmanSnapshot) -> None:
@@ -511,6 +519,7 @@ class KalmanFusion:
         self._counters = dict(snapshot.counters)
         self._outage_since_fix = snapshot.outage_since_fix
         self._last_orientation_fix = snapshot.last_orientation_fix
+        self._imu_interval = snapshot.imu_interval
 
     # ------------------------------------------------------------------ internals
 
@@ -536,6 +545,8 @@ class KalmanFusion:
         self._gyroscope = omega
         self._accelerometer_extra_variance = accelerometer_extra
         self._gyroscope_extra_variance = gyroscope_extra
+        if self._imu_time is not None:
+            self._imu_interval = t - self._imu_time
         self._imu_stamp = stamp
         self._imu_time = t
         self._counters["predictions"] += 1
@@ -586,7 +597,8 @@ class KalmanFusion:
         if t - self._time <= 0.0:
             return
         covered = streamhealth.imu_interval_split(self._time, t, self._imu_time,
-                                                  self.params.imu_dropout_s, f_end is not None)
+                                                  self.params.imu_dropout_s, self._hold_s(),
+                                                  f_end is not None)
         if covered < t:
             if covered > self._time:
                 self._advance_with_imu(covered, None, None)
