@@ -7,18 +7,22 @@ fix and a position bound usable as ISO/TS 15066's Z_d (:mod:`kfusion.safety`).
 
 Usage::
 
-    tracker = Tracker(imu_to_body=[1, 0, 0, 0], gravity=[0, -9.81, 0])
+    tracker = Tracker(imu_to_body=[1, 0, 0, 0], gravity=[0, -9.81, 0],
+                      clock=time.monotonic)       # the clock the samples are stamped with
     tracker.push_imu(t, accelerometer, gyroscope)     # m/s^2, rad/s, IMU frame
     tracker.push_mocap(t, position, quaternion)       # m, [w, x, y, z]; None/NaN: occluded
-    estimate = tracker.estimate()
+    estimate = tracker.estimate()                     # now (without a clock: estimate(now))
     estimate.status, estimate.bound(0.99)             # 'tracked' | 'bridged' | 'lost', m
 
-Status (at time t, with t_fix the time of the last fused mocap fix):
+Status (at time t, the caller's now, with t_fix the time of the last fused mocap fix):
 
-* ``lost``: no fix yet, ``t - t_fix > max_bridge_s``, the estimator has no estimate, or the
-  state is not finite. The position is NaN and ``bound()`` is ``math.inf``.
 * ``tracked``: the last mocap frame pushed was fused and ``t - t_fix <= fix_timeout_s``.
-* ``bridged``: otherwise (the last frame was occluded or gated, or frames stopped arriving).
+* ``lost``: otherwise, when there is no fix yet, ``t - t_fix > max_bridge_s``, the IMU did not
+  cover the time since the fix (no sample, a stalled stream, an outage, or t more than the hold
+  horizon after the last sample: :mod:`kfusion.streamhealth`), the estimator has no estimate, or
+  the state is not finite. The position is NaN and ``bound()`` is ``math.inf``.
+* ``bridged``: otherwise (the last frame was occluded or gated, or frames stopped arriving, and
+  the IMU dead-reckons).
 
 Bad input (each case is counted in :attr:`Tracker.health`). Bad values never raise; the only
 exception any call raises is ValueError, for a wrong shape or type (or an ``estimate(t)`` earlier
@@ -34,9 +38,14 @@ time <= the stream's last time         rejected ``out_of_order``; same time and 
                                        ``conflicting_duplicate``
 one stream behind the other            fused in time order by replaying the buffered samples
                                        (up to ``max_delay_s``); older: ``too_late``
-long IMU dropout (large dt)            dt is never clamped: the covariance grows over the whole
-                                       interval; counted as a dropout; bridged, then lost past
-                                       ``max_bridge_s`` after the last fix
+long IMU dropout (large dt), IMU      dt is never clamped: the interval the IMU does not cover
+stalled or never delivering            follows the no-IMU model (the covariance grows over all of
+                                       it); counted once in ``imu_dropouts``; fixes still give
+                                       the position (tracked); a gap is lost, never bridged
+stamp > ``max_time_jump_s`` ahead of   rejected ``implausible_time``; three consistent such
+both streams (a glitch)                stamps confirm a real jump (``time_rebases``), as do
+                                       stamps of every stream far behind a glitched present
+huge int time (beyond float)           rejected ``non_finite``; ``estimate`` of it is lost
 accelerometer at its range limit       accepted, flagged ``saturated``; the Kalman filter adds
 (an axis at >= 99.9 % of the range)    (range/2)^2 acceleration variance over the interval the
                                        sample is held, so the clipped part becomes position and
@@ -47,9 +56,11 @@ mocap position inf                     rejected ``non_finite``
 mocap quaternion None / NaN            kalman: position-only update (orientation from the
                                        gyroscope); baseline: occluded
 mocap quaternion not unit (> 1e-3)     rejected ``bad_quaternion``
-mocap jump / marker swap               chi-square gate: rejected ``gated`` and counted; after
-                                       ``reacquire_after_s`` without a fix the next fix is
-                                       accepted (re-acquisition, counted)
+mocap jump / marker swap               chi-square gate: rejected ``gated`` and counted, however
+                                       long the gap, while the prediction is valid (bridged
+                                       with its bound); once lost, the next fix re-acquires
+mocap orientation flipped              gated against the gyroscope orientation: the fix is used
+                                       position-only, counted ``orientation_gated``
 non-finite estimator state             status lost, the estimator restarts at the next fix,
                                        counted in ``state_resets``
 =====================================  ==========================================================
