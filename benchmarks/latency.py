@@ -52,7 +52,7 @@ def time_tracker(recording: Recording, tracker: Tracker, *, estimate_every_imu: 
             timings["push_imu"].append(clock() - start)
             if estimate_every_imu:
                 start = clock()
-                tracker.estimate()
+                tracker.estimate(imu_t[i])
                 timings["estimate"].append(clock() - start)
             i += 1
         position = mocap.position[row] if visible[row] else None
@@ -60,7 +60,7 @@ def time_tracker(recording: Recording, tracker: Tracker, *, estimate_every_imu: 
         start = clock()
         tracker.push_mocap(t, position, quaternion)
         middle = clock()
-        tracker.estimate()
+        tracker.estimate(t)
         end = clock()
         timings["push_mocap"].append(middle - start)
         timings["push_mocap + estimate"].append(end - start)

@@ -351,7 +351,7 @@ def feed(tracker: Tracker, chunk: Chunk) -> ChunkResult:
             i += 1
         push_mocap(t, chunk.position[row] if visible[row] else None,
                    chunk.quaternion[row] if visible[row] else None)
-        result = estimate()
+        result = estimate(t)  # now = the frame time
         status[row] = result.status
         if result.status != "lost":
             error[row] = float(np.linalg.norm(result.position - chunk.truth[row]))

@@ -7,18 +7,22 @@ fix and a position bound usable as ISO/TS 15066's Z_d (:mod:`kfusion.safety`).
 
 Usage::
 
-    tracker = Tracker(imu_to_body=[1, 0, 0, 0], gravity=[0, -9.81, 0])
+    tracker = Tracker(imu_to_body=[1, 0, 0, 0], gravity=[0, -9.81, 0],
+                      clock=time.monotonic)       # the clock the samples are stamped with
     tracker.push_imu(t, accelerometer, gyroscope)     # m/s^2, rad/s, IMU frame
     tracker.push_mocap(t, position, quaternion)       # m, [w, x, y, z]; None/NaN: occluded
-    estimate = tracker.estimate()
+    estimate = tracker.estimate()                     # now (without a clock: estimate(now))
     estimate.status, estimate.bound(0.99)             # 'tracked' | 'bridged' | 'lost', m
 
-Status (at time t, with t_fix the time of the last fused mocap fix):
+Status (at time t, the caller's now, with t_fix the time of the last fused mocap fix):
 
-* ``lost``: no fix yet, ``t - t_fix > max_bridge_s``, the estimator has no estimate, or the
-  state is not finite. The position is NaN and ``bound()`` is ``math.inf``.
 * ``tracked``: the last mocap frame pushed was fused and ``t - t_fix <= fix_timeout_s``.
-* ``bridged``: otherwise (the last frame was occluded or gated, or frames stopped arriving).
+* ``lost``: otherwise, when there is no fix yet, ``t - t_fix > max_bridge_s``, the IMU did not
+  cover the time since the fix (no sample, a stalled stream, an outage, or t more than the hold
+  horizon after the last sample: :mod:`kfusion.streamhealth`), the estimator has no estimate, or
+  the state is not finite. The position is NaN and ``bound()`` is ``math.inf``.
+* ``bridged``: otherwise (the last frame was occluded or gated, or frames stopped arriving, and
+  the IMU dead-reckons).
 
 Bad input (each case is counted in :attr:`Tracker.health`). Bad values never raise; the only
 exception any call raises is ValueError, for a wrong shape or type (or an ``estimate(t)`` earlier
@@ -34,9 +38,14 @@ time <= the stream's last time         rejected ``out_of_order``; same time and 
                                        ``conflicting_duplicate``
 one stream behind the other            fused in time order by replaying the buffered samples
                                        (up to ``max_delay_s``); older: ``too_late``
-long IMU dropout (large dt)            dt is never clamped: the covariance grows over the whole
-                                       interval; counted as a dropout; bridged, then lost past
-                                       ``max_bridge_s`` after the last fix
+long IMU dropout (large dt), IMU      dt is never clamped: the interval the IMU does not cover
+stalled or never delivering            follows the no-IMU model (the covariance grows over all of
+                                       it); counted once in ``imu_dropouts``; fixes still give
+                                       the position (tracked); a gap is lost, never bridged
+stamp > ``max_time_jump_s`` ahead of   rejected ``implausible_time``; three consistent such
+both streams (a glitch)                stamps confirm a real jump (``time_rebases``), as do
+                                       stamps of every stream far behind a glitched present
+huge int time (beyond float)           rejected ``non_finite``; ``estimate`` of it is lost
 accelerometer at its range limit       accepted, flagged ``saturated``; the Kalman filter adds
 (an axis at >= 99.9 % of the range)    (range/2)^2 acceleration variance over the interval the
                                        sample is held, so the clipped part becomes position and
@@ -47,9 +56,11 @@ mocap position inf                     rejected ``non_finite``
 mocap quaternion None / NaN            kalman: position-only update (orientation from the
                                        gyroscope); baseline: occluded
 mocap quaternion not unit (> 1e-3)     rejected ``bad_quaternion``
-mocap jump / marker swap               chi-square gate: rejected ``gated`` and counted; after
-                                       ``reacquire_after_s`` without a fix the next fix is
-                                       accepted (re-acquisition, counted)
+mocap jump / marker swap               chi-square gate: rejected ``gated`` and counted, however
+                                       long the gap, while the prediction is valid (bridged
+                                       with its bound); once lost, the next fix re-acquires
+mocap orientation flipped              gated against the gyroscope orientation: the fix is used
+                                       position-only, counted ``orientation_gated``
 non-finite estimator state             status lost, the estimator restarts at the next fix,
                                        counted in ``state_resets``
 =====================================  ==========================================================
@@ -66,9 +77,11 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import math
+import threading
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache
 from numbers import Real
@@ -80,7 +93,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kfusion.conventions import (
-    BRIDGED,
     GRAVITY_MAGNITUDE_RANGE,
     LOST,
     QUATERNION_NORM_TOLERANCE,
@@ -91,6 +103,20 @@ from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, sho
 from kfusion.kalman.filter import ACCEPTED, GATED, OCCLUDED, REACQUIRED
 from kfusion.profiles import ImuProfile, imu_profile
 from kfusion.recording import MAX_CLOCK_DRIFT_PPM, RecordingInfo
+from kfusion.streamhealth import (
+    DEFAULT_MAX_TIME_JUMP_S,
+    IMPLAUSIBLE,
+    REBASE,
+    ImuWatch,
+    TimeGuard,
+    dead_reckoning_until,
+    hold_horizon,
+    status_durations,
+    tracking_status,
+)
+
+__all__ = ["Estimate", "Health", "PushOutcome", "Tracker", "TrackerOptions",
+           "TrackerSnapshot", "position_bound", "status_durations", "tracking_status"]
 
 # ---------------------------------------------------------------------------------------------
 # Reasons (the strings of PushOutcome.reason and the keys of the health counters)
@@ -107,10 +133,13 @@ DUPLICATE: Final = "duplicate"
 CONFLICTING_DUPLICATE: Final = "conflicting_duplicate"
 TOO_LATE: Final = "too_late"
 BAD_QUATERNION: Final = "bad_quaternion"
+IMPLAUSIBLE_TIME: Final = "implausible_time"
+"""A stamp implausibly far ahead of both streams (:class:`kfusion.streamhealth.TimeGuard`)."""
 
-IMU_REJECTIONS: Final = (NON_FINITE, OUT_OF_ORDER, DUPLICATE, CONFLICTING_DUPLICATE, TOO_LATE)
+IMU_REJECTIONS: Final = (NON_FINITE, OUT_OF_ORDER, DUPLICATE, CONFLICTING_DUPLICATE, TOO_LATE,
+                         IMPLAUSIBLE_TIME)
 MOCAP_REJECTIONS: Final = (GATED, NON_FINITE, BAD_QUATERNION, OUT_OF_ORDER, DUPLICATE,
-                           CONFLICTING_DUPLICATE, TOO_LATE)
+                           CONFLICTING_DUPLICATE, TOO_LATE, IMPLAUSIBLE_TIME)
 METHODS: Final = ("kalman", "baseline")
 DEFAULT_CONFIDENCE: Final = 0.99
 
@@ -132,7 +161,7 @@ class PushOutcome:
             updated it). False for rejections, skipped duplicates and occluded frames.
         reason: one of ``accepted``, ``saturated`` (IMU, fused but flagged), ``reacquired``,
             ``occluded``, ``gated``, ``non_finite``, ``out_of_order``, ``duplicate``,
-            ``conflicting_duplicate``, ``too_late``, ``bad_quaternion``.
+            ``conflicting_duplicate``, ``too_late``, ``bad_quaternion``, ``implausible_time``.
     """
 
     accepted: bool
@@ -185,7 +214,10 @@ class Health:
         imu_accepted: IMU samples fused (saturated ones included).
         imu_rejected: reason -> count (``IMU_REJECTIONS``); accepted + rejected == pushed.
         imu_saturated: fused samples with an accelerometer axis at its range limit.
-        imu_dropouts: intervals between fused IMU samples longer than the dropout threshold.
+        imu_dropouts: IMU outages: intervals of more than ``imu_dropout_s`` without an IMU
+            sample, each counted once, whether a later sample ends it or mocap frames arrive
+            while the IMU is silent (an IMU that never delivers counts once)
+            (:class:`kfusion.streamhealth.ImuWatch`).
         longest_imu_interval_s: longest interval between fused IMU samples, s.
         mocap_pushed: push_mocap calls that passed the shape/type check.
         mocap_fused: fixes fused (re-acquisitions included).
@@ -201,6 +233,11 @@ class Health:
         state_resets: times a non-finite estimator state forced a restart.
         replays: samples that arrived behind the other stream and were fused by replay.
         resets: calls to :meth:`Tracker.reset`.
+        orientation_gated: mocap orientations rejected by the gate against the gyroscope (the
+            fix's position was still used; Kalman only).
+        time_rebases: times consistent samples showed the clock really jumped (or the newest
+            time was itself a glitch) and the streams restarted from the new time
+            (:class:`kfusion.streamhealth.TimeGuard`).
     """
 
     imu_pushed: int
@@ -223,6 +260,8 @@ class Health:
     state_resets: int
     replays: int
     resets: int
+    orientation_gated: int = 0
+    time_rebases: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         """Plain nested dict (for logging or YAML/JSON)."""
@@ -245,16 +284,21 @@ class TrackerOptions:
             checkpoint is also taken after every mocap frame). > 0.
         accelerometer_range: m/s^2; a sample with an axis at 99.9 % of it or beyond is flagged
             ``saturated``. None: the estimator's (Kalman parameters) or the IMU profile's range.
+        max_time_jump_s: s; a stamp more than this ahead of the newest time of both streams is
+            rejected ``implausible_time`` unless consistent samples confirm the jump
+            (:class:`kfusion.streamhealth.TimeGuard`). > 0.
     """
 
     fix_timeout_s: float = 0.05
     max_delay_s: float = 0.1
     checkpoint_interval_s: float = 0.02
     accelerometer_range: float | None = None
+    max_time_jump_s: float = DEFAULT_MAX_TIME_JUMP_S
 
     def __post_init__(self) -> None:
         for name, positive in (("fix_timeout_s", True), ("max_delay_s", False),
-                               ("checkpoint_interval_s", True), ("accelerometer_range", True)):
+                               ("checkpoint_interval_s", True), ("accelerometer_range", True),
+                               ("max_time_jump_s", True)):
             value = getattr(self, name)
             if value is None and name == "accelerometer_range":
                 continue
@@ -335,41 +379,6 @@ def position_bound(covariance: ArrayLike, confidence: float = DEFAULT_CONFIDENCE
     return math.sqrt(max(largest, 0.0) * _chi2_3_quantile(float(confidence)))
 
 
-def tracking_status(time_since_fix: float, last_frame_fused: bool, *, fix_timeout_s: float,
-                    max_bridge_s: float) -> str:
-    """The status rule (``time_since_fix`` is inf before the first fix):
-
-        lost     if time_since_fix > max_bridge_s
-        tracked  if the last frame was fused and time_since_fix <= fix_timeout_s
-        bridged  otherwise
-    """
-    if not time_since_fix <= max_bridge_s:
-        return LOST
-    if last_frame_fused and time_since_fix <= fix_timeout_s:
-        return TRACKED
-    return BRIDGED
-
-
-def status_durations(start: float, end: float, fix_time: float, last_frame_fused: bool, *,
-                     fix_timeout_s: float, max_bridge_s: float) -> tuple[float, float, float]:
-    """Time (s) spent tracked, bridged and lost over [start, end] with no new fix inside.
-
-    With f = fix_time (``-inf`` before any fix), :func:`tracking_status` is tracked on
-    [f, f + fix_timeout_s] (only if the last frame was fused), bridged up to f + max_bridge_s,
-    and lost after; the result is the length of each of those intervals within [start, end].
-    """
-    tracked_end = fix_time + (fix_timeout_s if last_frame_fused else 0.0)
-    bridged_end = fix_time + max_bridge_s
-
-    def overlap(low: float, high: float) -> float:
-        return max(0.0, min(end, high) - max(start, low))
-
-    tracked = overlap(fix_time, tracked_end) if last_frame_fused else 0.0
-    bridged = overlap(tracked_end, bridged_end)
-    lost = (end - start) - tracked - bridged
-    return tracked, bridged, max(lost, 0.0)
-
-
 def _read_only(array: NDArray[np.float64]) -> NDArray[np.float64]:
     array.flags.writeable = False
     return array
@@ -406,7 +415,10 @@ def _time(where: str, t: object) -> float:
             return float(t)
         raise ValueError(f"{where}: t: expected a time in s (a real number), got "
                          f"{type(t).__name__}")
-    return float(t)  # type: ignore[arg-type]
+    try:
+        return float(t)  # type: ignore[arg-type]
+    except OverflowError:  # an int (or Fraction) beyond the float range: an infinite time
+        return math.inf if t > 0 else -math.inf  # type: ignore[operator]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -443,6 +455,10 @@ class _Estimator(Protocol):
 
     def resets(self) -> int: ...
 
+    def dead_reckoning_until(self) -> float: ...
+
+    def orientation_gated(self) -> int: ...
+
     def snapshot(self) -> object: ...
 
     def restore(self, snapshot: object) -> None: ...
@@ -462,17 +478,38 @@ class _BaselineEstimator:
         self.max_bridge_s = float(params.max_bridge_s)
         self.imu_dropout_s = 0.1
         self.accelerometer_range = accelerometer_range
+        self._imu_time: float | None = None
+        self._imu_interval: float | None = None
+        self._outage_since_fix = False
 
     def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
+        if self._imu_time is not None:
+            self._imu_interval = t - self._imu_time
+            if self._imu_interval > self.imu_dropout_s:
+                self._outage_since_fix = True  # the paper's method dead-reckons across it
+        self._imu_time = t
         self._tracker.push_imu(t, accelerometer, gyroscope)
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str:
+        if t > self.dead_reckoning_until():
+            self._outage_since_fix = True
         if position is None or quaternion is None:
             # the paper's method needs the orientation at every fix
             self._tracker.push_mocap(t, None, None)
             return OCCLUDED
         self._tracker.push_mocap(t, position, quaternion)
+        self._outage_since_fix = False
         return ACCEPTED
+
+    def dead_reckoning_until(self) -> float:
+        """As :func:`kfusion.streamhealth.dead_reckoning_until`, kept around the paper's
+        method (which itself dead-reckons whatever the IMU does)."""
+        return dead_reckoning_until(self._imu_time, hold_horizon(self._imu_interval,
+                                                                 self.imu_dropout_s),
+                                    self._outage_since_fix)
+
+    def orientation_gated(self) -> int:
+        return 0
 
     def read(self, t: float) -> _Reading | None:
         output = self._tracker.estimate(t)
@@ -489,10 +526,12 @@ class _BaselineEstimator:
         return 0
 
     def snapshot(self) -> object:
-        return copy.deepcopy(self._tracker)
+        return copy.deepcopy((self._tracker, self._imu_time, self._imu_interval,
+                              self._outage_since_fix))
 
     def restore(self, snapshot: object) -> None:
-        self._tracker = copy.deepcopy(snapshot)  # type: ignore[assignment]
+        (self._tracker, self._imu_time, self._imu_interval,
+         self._outage_since_fix) = copy.deepcopy(snapshot)  # type: ignore[misc]
 
 
 class _KalmanEstimator:
@@ -535,6 +574,12 @@ class _KalmanEstimator:
     def resets(self) -> int:
         """Times the fusion forgot an overflowing state by itself (its ``resets`` counter)."""
         return int(self._fusion.counters["resets"])
+
+    def dead_reckoning_until(self) -> float:
+        return self._fusion.dead_reckoning_until()
+
+    def orientation_gated(self) -> int:
+        return int(self._fusion.counters["orientation_gated"])
 
     def snapshot(self) -> object:
         return self._fusion.snapshot()
@@ -602,8 +647,19 @@ class _Stream:
     accepted: int = 0
     rejected: dict[str, int] = field(default_factory=dict)
     saturated: int = 0
-    dropouts: int = 0
     longest_interval_s: float = 0.0
+
+
+def _locked(method: Any) -> Any:
+    """Run a :class:`Tracker` method holding the tracker's lock (calls from several threads
+    are serialised: each sees the state before or after another, never half-way)."""
+
+    @functools.wraps(method)
+    def wrapper(self: Tracker, *args: Any, **kwargs: Any) -> Any:
+        with self._lock:
+            return method(self, *args, **kwargs)
+
+    return wrapper
 
 
 # ---------------------------------------------------------------------------------------------
@@ -628,6 +684,13 @@ class Tracker:
         options: :class:`TrackerOptions` or a mapping of its fields.
         imu_time_offset: s, and imu_clock_drift_ppm: the IMU's clock; :meth:`push_imu` maps
             its ``t`` onto the mocap clock with :func:`kfusion.conventions.imu_time_to_mocap`.
+        clock: a function returning the current time in s *on the stamps' clock* (e.g.
+            ``time.monotonic`` when the samples are stamped with it). With it,
+            :meth:`estimate` without ``t`` is the estimate now; without it, :meth:`estimate`
+            needs ``t`` (an estimate is never presented as current when it is old).
+
+    Thread safety: every public method holds the tracker's lock, and :meth:`estimate` and
+    :attr:`health` do not change the state, so one thread may push while others read.
 
     Raises:
         ValueError: for any malformed argument, naming what was expected and what was given.
@@ -645,12 +708,18 @@ class Tracker:
         options: TrackerOptions | Mapping[str, Any] | None = None,
         imu_time_offset: float = 0.0,
         imu_clock_drift_ppm: float = 0.0,
+        clock: Callable[[], float] | None = None,
     ) -> None:
-        clock = (_time("Tracker", imu_time_offset), _time("Tracker", imu_clock_drift_ppm))
-        if not (math.isfinite(clock[0]) and abs(clock[1]) <= MAX_CLOCK_DRIFT_PPM):
+        imu_clock = (_time("Tracker", imu_time_offset), _time("Tracker", imu_clock_drift_ppm))
+        if not (math.isfinite(imu_clock[0]) and abs(imu_clock[1]) <= MAX_CLOCK_DRIFT_PPM):
             raise ValueError(f"Tracker: expected a finite imu_time_offset (s) and "
-                             f"|imu_clock_drift_ppm| <= {MAX_CLOCK_DRIFT_PPM:g}, got {clock}")
-        self.imu_clock = clock
+                             f"|imu_clock_drift_ppm| <= {MAX_CLOCK_DRIFT_PPM:g}, got {imu_clock}")
+        self.imu_clock = imu_clock
+        if clock is not None and not callable(clock):
+            raise ValueError(f"Tracker: clock: expected a function returning the time in s, "
+                             f"got {type(clock).__name__}")
+        self._lock = threading.RLock()
+        self._clock = clock
         q_body_imu = _vector("Tracker", "imu_to_body", imu_to_body, 4, "[w, x, y, z]")
         norm = float(np.linalg.norm(q_body_imu))
         if not np.isfinite(q_body_imu).all() or abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
@@ -692,6 +761,8 @@ class Tracker:
         if range_ is None:
             range_ = self._estimator.accelerometer_range
         self._saturation_level = 0.999 * range_
+        self._watch = ImuWatch(self._estimator.imu_dropout_s)
+        self._guard = TimeGuard(options.max_time_jump_s)
         self._resets = 0
         self._replays = 0
         self._log: deque[tuple] = deque()
@@ -782,6 +853,7 @@ class Tracker:
 
     # ---- public API -------------------------------------------------------------------------
 
+    @_locked
     def push_imu(self, t: float, acc: ArrayLike, gyro: ArrayLike) -> PushOutcome:
         """Feed one IMU sample.
 
@@ -809,17 +881,17 @@ class Tracker:
         if not (isfinite(t) and isfinite(a0) and isfinite(a1) and isfinite(a2)
                 and isfinite(g0) and isfinite(g1) and isfinite(g2)):
             return self._reject(stream, NON_FINITE)
+        if self._implausible(t, _IMU):
+            return self._reject(stream, IMPLAUSIBLE_TIME)
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (accelerometer, gyroscope))
         saturated = max(abs(a0), abs(a1), abs(a2)) >= self._saturation_level
         if self._fuse((t, _IMU, accelerometer, (g0, g1, g2), saturated)) is None:
             return self._reject(stream, TOO_LATE)
         interval = t - stream.last_t  # inf for the first sample (after a reset too)
-        if interval != math.inf:
-            if interval > stream.longest_interval_s:
-                stream.longest_interval_s = interval
-            if interval > self._estimator.imu_dropout_s:
-                stream.dropouts += 1
+        if interval != math.inf and interval > stream.longest_interval_s:
+            stream.longest_interval_s = interval
+        self._watch.imu(t)
         stream.last_t = t
         stream.last_values = (accelerometer, gyroscope)
         stream.accepted += 1
@@ -828,6 +900,7 @@ class Tracker:
             return _FUSED_SATURATED
         return _FUSED
 
+    @_locked
     def push_mocap(self, t: float, position: ArrayLike | None,
                    quaternion: ArrayLike | None) -> PushOutcome:
         """Feed one mocap frame.
@@ -856,6 +929,8 @@ class Tracker:
         components = rotation.tolist()
         if not math.isfinite(t) or any(map(math.isinf, values + components)):
             return self._reject(stream, NON_FINITE)
+        if self._implausible(t, _MOCAP):
+            return self._reject(stream, IMPLAUSIBLE_TIME)
         if any(map(math.isnan, values)):
             point, rotation = nan_position, np.full(4, np.nan)
         elif any(map(math.isnan, components)):
@@ -871,29 +946,40 @@ class Tracker:
             return self._reject(stream, TOO_LATE)
         stream.last_t, stream.last_values = t, (point, rotation)
         stream.accepted += 1
+        self._watch.mocap(t)
         return PushOutcome(reason in (ACCEPTED, REACQUIRED), reason)
 
+    @_locked
     def estimate(self, t: float | None = None) -> Estimate:
-        """The estimate at ``t`` (default: the newest fused sample's time; NaN before any).
+        """The estimate at ``t``, the caller's current time in s on the stamps' clock.
 
-        A later ``t`` extrapolates with the last IMU sample held (zero-order hold) and ages
-        ``time_since_fix``; the state is not changed.
+        ``t`` may be omitted only for a tracker built with a ``clock``: the estimate is then at
+        ``clock()`` (or at the newest fused sample, if that is later). Without either there is
+        no "now", and an estimate at the newest sample's time would look current after the
+        streams stopped: ValueError. A later ``t`` than the newest sample extrapolates with the
+        last IMU sample held (for at most ``imu_dropout_s``; later a gap is ``lost``) and ages
+        ``time_since_fix``; the state is not changed. NaN position before any fix.
 
         Raises:
-            ValueError: ``t`` not a real number, or earlier than the newest fused sample.
+            ValueError: ``t`` missing without a clock, not a real number, or earlier than the
+                newest fused sample.
         """
         book = self._book
         if t is None:
-            t = math.nan if book.key is None else book.key[0]
+            if self._clock is None:
+                raise ValueError("estimate: t: expected the current time in s (the stamps' "
+                                 "clock), got none; pass estimate(now) or build the Tracker "
+                                 "with clock=")
+            t = _time("estimate", self._clock())
+            if book.key is not None and not t >= book.key[0]:
+                t = book.key[0]
         else:
             t = _time("estimate", t)
             if book.key is not None and not t >= book.key[0]:
                 raise ValueError(f"estimate: t: expected a time >= {book.key[0]!r} s (the "
                                  f"newest fused sample), got {t!r}")
         since = t - book.fix_time
-        status = tracking_status(since, book.last_frame_fused,
-                                 fix_timeout_s=self.options.fix_timeout_s,
-                                 max_bridge_s=self.max_bridge_s)
+        status = self._status_at(t)
         reading = None
         if status != LOST and math.isfinite(t):
             try:
@@ -914,6 +1000,14 @@ class Tracker:
                         status=status, time_since_fix=since, method=self.method)
 
     @property
+    @_locked
+    def newest_time(self) -> float:
+        """Time (s) of the newest fused sample; NaN before any. Not "now": after the streams
+        stop it stays put, so pass the caller's current time to :meth:`estimate`."""
+        return math.nan if self._book.key is None else self._book.key[0]
+
+    @property
+    @_locked
     def health(self) -> Health:
         """The health counters now (a frozen copy)."""
         imu, mocap, book = self._imu, self._mocap, self._book
@@ -926,7 +1020,7 @@ class Tracker:
         return Health(
             imu_pushed=imu.pushed, imu_accepted=imu.accepted,
             imu_rejected=MappingProxyType(dict(imu.rejected)), imu_saturated=imu.saturated,
-            imu_dropouts=imu.dropouts, longest_imu_interval_s=imu.longest_interval_s,
+            imu_dropouts=self._watch.outages, longest_imu_interval_s=imu.longest_interval_s,
             mocap_pushed=mocap.pushed, mocap_fused=counts.mocap_fused,
             mocap_occluded=counts.mocap_occluded,
             mocap_rejected=MappingProxyType(mocap_rejected), gate_rejections=counts.gated,
@@ -934,8 +1028,11 @@ class Tracker:
             time_bridged_s=counts.time_bridged_s, time_lost_s=counts.time_lost_s,
             longest_gap_s=gap, lost_transitions=counts.lost_transitions,
             state_resets=counts.state_resets, replays=self._replays, resets=self._resets,
+            orientation_gated=self._estimator.orientation_gated(),
+            time_rebases=self._guard.rebases,
         )
 
+    @_locked
     def reset(self) -> None:
         """Forget the state and the stream history, as if newly constructed; the health
         counters keep counting (``health.resets`` counts the calls)."""
@@ -943,6 +1040,7 @@ class Tracker:
         self._estimator = self._new_estimator()
         self._start_streams(keep_counters=True)
 
+    @_locked
     def snapshot(self) -> TrackerSnapshot:
         """A deep copy of the whole state (estimator, stream history, buffers, counters).
 
@@ -951,12 +1049,14 @@ class Tracker:
         state = copy.deepcopy({
             "estimator": self._estimator.snapshot(), "book": self._book, "imu": self._imu,
             "mocap": self._mocap, "log": self._log, "checkpoints": self._checkpoints,
-            "resets": self._resets, "replays": self._replays,
+            "resets": self._resets, "replays": self._replays, "watch": self._watch,
+            "guard": self._guard,
         })
         newest = math.nan if self._book.key is None else self._book.key[0]
         return TrackerSnapshot(method=self.method, t=newest,
                                _configuration=self._configuration(), _state=state)
 
+    @_locked
     def restore(self, snapshot: TrackerSnapshot) -> None:
         """Continue from ``snapshot`` (taken from a tracker built with the same arguments).
 
@@ -975,7 +1075,9 @@ class Tracker:
         self._imu, self._mocap = state["imu"], state["mocap"]
         self._log, self._checkpoints = state["log"], state["checkpoints"]
         self._resets, self._replays = state["resets"], state["replays"]
+        self._watch, self._guard = state["watch"], state["guard"]
 
+    @_locked
     def __repr__(self) -> str:
         newest = None if self._book.key is None else self._book.key[0]
         return f"Tracker(method={self.method!r}, t={newest!r}, status={self._book.status!r})"
@@ -993,6 +1095,7 @@ class Tracker:
             for stream in (self._imu, self._mocap):
                 stream.last_t, stream.last_values = -math.inf, None
             self._book = _Book(counts=self._book.counts)
+            self._watch.forget()
         else:
             self._imu = _Stream(rejected=dict.fromkeys(IMU_REJECTIONS, 0))
             self._mocap = _Stream(rejected=dict.fromkeys(MOCAP_REJECTIONS, 0))
@@ -1002,6 +1105,18 @@ class Tracker:
         if self.options.max_delay_s > 0:
             self._checkpoints.append(_Checkpoint((-math.inf, -1), self._estimator.snapshot(),
                                                  self._book.copy()))
+
+    def _implausible(self, t: float, stream: int) -> bool:
+        """Judge a finite stamp against the newest time of both streams
+        (:class:`kfusion.streamhealth.TimeGuard`): True to reject it. A confirmed jump restarts
+        the streams from the new time (counted in ``health.time_rebases``)."""
+        imu, mocap = self._imu.last_t, self._mocap.last_t
+        seen = {index for index, last in ((_IMU, imu), (_MOCAP, mocap)) if last != -math.inf}
+        verdict = self._guard.check(t, stream, max(imu, mocap), seen)
+        if verdict == REBASE:
+            self._estimator = self._new_estimator()
+            self._start_streams(keep_counters=True)
+        return verdict == IMPLAUSIBLE
 
     def _reject(self, stream: _Stream, reason: str) -> PushOutcome:
         stream.rejected[reason] += 1
@@ -1136,10 +1251,11 @@ class Tracker:
         book = self._book
         since = t - book.fix_time
         if book.last_frame_fused and since <= self.options.fix_timeout_s:
-            return TRACKED  # fast path of tracking_status (fix_timeout_s < max_bridge_s)
+            return TRACKED  # fast path of tracking_status
         return tracking_status(since, book.last_frame_fused,
                                fix_timeout_s=self.options.fix_timeout_s,
-                               max_bridge_s=self.max_bridge_s)
+                               max_bridge_s=self.max_bridge_s,
+                               beyond_dead_reckoning=t > self._estimator.dead_reckoning_until())
 
     def _account(self, start: float, end: float) -> None:
         """Add the time from ``start`` to ``end`` (no fix inside) to the status durations."""
@@ -1149,7 +1265,8 @@ class Tracker:
             return
         tracked, bridged, lost = status_durations(
             start, end, book.fix_time, book.last_frame_fused,
-            fix_timeout_s=self.options.fix_timeout_s, max_bridge_s=self.max_bridge_s)
+            fix_timeout_s=self.options.fix_timeout_s, max_bridge_s=self.max_bridge_s,
+            reckoning_until=self._estimator.dead_reckoning_until())
         book.counts.time_tracked_s += tracked
         book.counts.time_bridged_s += bridged
         book.counts.time_lost_s += lost

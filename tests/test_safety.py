@@ -124,7 +124,7 @@ def test_real_lost_tracker_estimate_is_unknown():
     from kfusion.tracker import Tracker
 
     tracker = Tracker(imu_to_body=[1, 0, 0, 0], gravity=[0, -9.81, 0])
-    estimate = tracker.estimate()  # no data at all
+    estimate = tracker.estimate(tracker.newest_time)  # no data at all
     assert estimate.status == "lost"
     result = protective_separation_distance(estimate, **ROBOT)
     assert not result.known and result.value == math.inf

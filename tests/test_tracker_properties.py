@@ -8,7 +8,7 @@ values, occlusions, jumps and marker swaps, bad quaternions, wrong shapes and ty
 After every call:
 
 * only ValueError escapes, and only for a wrong shape or type (or an estimate time earlier than
-  the newest sample);
+  the newest sample, or missing: the tracker has no clock);
 * ``estimate()`` is finite whenever its status is not ``lost``, its covariance symmetric and
   positive semi-definite, and its bound finite (Kalman) or ``inf`` (baseline); when lost the
   position is NaN and the bound ``inf``;
@@ -139,7 +139,7 @@ def mocap_arguments(position_kind: str, quaternion_kind: str, jitter: float):
 
 
 def check_invariants(tracker: Tracker, pushed: dict[str, int], method: str) -> None:
-    estimate = tracker.estimate()
+    estimate = tracker.estimate(tracker.newest_time)
     assert estimate.status in STATUSES
     if estimate.status == "lost":
         assert np.isnan(estimate.position).all()
@@ -191,11 +191,11 @@ def run_calls(method: str, sequence) -> None:
                 assert outcome.reason in REASONS
                 assert outcome.accepted == (outcome.reason in ("accepted", "reacquired"))
             elif name == "estimate":
-                newest = tracker.estimate().t
+                newest = tracker.estimate(tracker.newest_time).t
                 base = newest if math.isfinite(newest) else 0.0
                 argument: object = {"none": None, "later": base + jitter, "far": base + 1e9,
                                     "earlier": base - 1.0 - jitter, "text": "soon"}[first]
-                expect_error = first == "text" or (
+                expect_error = first in ("text", "none") or (  # no clock: t is required
                     first == "earlier" and argument < newest)  # type: ignore[operator]
                 estimate = tracker.estimate(argument)  # type: ignore[arg-type]
                 if estimate.status != "lost":

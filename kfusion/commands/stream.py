@@ -44,7 +44,7 @@ def stream_recording(recording: Recording, tracker: Tracker | None = None
         visible = bool(mocap.visible[row])
         tracker.push_mocap(t, mocap.position[row] if visible else None,
                            mocap.quaternion[row] if visible else None)
-        yield row, tracker.estimate()
+        yield row, tracker.estimate(t)  # "now" is the frame's time on the recording's clock
 
 
 def format_estimate(estimate: Estimate, confidence: float = 0.99) -> str:

@@ -109,18 +109,24 @@ class FilterRun:
 
 
 def status_from_fixes(t: NDArray[np.float64], fixed: NDArray[np.bool_], initialised:
-                      NDArray[np.bool_], max_bridge_s: float
+                      NDArray[np.bool_], max_bridge_s: float,
+                      dead_reckoned: NDArray[np.bool_] | None = None
                       ) -> tuple[NDArray[np.str_], NDArray[np.float64]]:
     """Status and time since the last fix at each row.
 
     ``tracked`` where the row's fix was used, ``bridged`` while the time since the last used fix
-    is at most ``max_bridge_s``, ``lost`` before the first fix and beyond that horizon.
+    is at most ``max_bridge_s`` and the row is ``dead_reckoned`` (IMU-propagated since the last
+    fix: :meth:`KalmanFusion.dead_reckoning_until`; None: every row), ``lost`` before the first
+    fix and beyond those horizons (:func:`kfusion.streamhealth.tracking_status`).
     """
     t = np.asarray(t, dtype=float)
     fix_time = np.where(fixed, t, -np.inf)
     last_fix = np.maximum.accumulate(fix_time) if len(t) else fix_time
     since = t - last_fix
-    status = np.where(fixed, TRACKED, np.where(since <= max_bridge_s, BRIDGED, LOST))
+    bridgeable = since <= max_bridge_s
+    if dead_reckoned is not None:
+        bridgeable &= np.asarray(dead_reckoned, dtype=bool)
+    status = np.where(fixed, TRACKED, np.where(bridgeable, BRIDGED, LOST))
     status = np.where(initialised, status, LOST)
     return status.astype(str), since
 
@@ -148,11 +154,13 @@ class _RowRecorder:
         self.output_offset = np.zeros((rows, 3))
         self.outcome = np.empty(rows, dtype=object)
         self.nis = np.full(rows, np.nan)
+        self.dead_reckoned = np.zeros(rows, dtype=bool)
 
     def record(self, row: int, outcome: UpdateOutcome) -> None:
         fusion = self.fusion
         self.outcome[row] = outcome.kind
         self.nis[row] = outcome.nis
+        self.dead_reckoned[row] = outcome.t <= fusion.dead_reckoning_until()
         if fusion.initialised:
             self.x[row] = fusion._kf.x
             self.P[row] = fusion._kf.P
@@ -177,7 +185,7 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None,
     recorder = _RowRecorder(fusion, len(recording.mocap))
     process_recording(recording, fusion, recorder.record)
     status, since = status_from_fixes(recording.mocap.t, recorder.fixed, recorder.initialised,
-                                      params.max_bridge_s)
+                                      params.max_bridge_s, recorder.dead_reckoned)
     position, std = point_estimates(recorder.x, recorder.P, recorder.output_matrix,
                                     recorder.output_offset)
     result = TrackResult(t=np.array(recording.mocap.t), position=position, std=std,

@@ -52,10 +52,26 @@ Gating: a fix is rejected (``gated``, counted) when its NIS ``y^T S^-1 y`` excee
 chi-square(3) quantile of ``gate_probability`` *and* it lies more than ``gate_min_innovation``
 (1 cm) from the prediction: a marker swap or jump moves the rigid body by centimetres, while an
 impact the IMU cannot sample can make the filter briefly over-confident by a few millimetres, and
-rejecting good fixes then makes it drift away from them. The first fix ``reacquire_after_s`` or
-more after the last accepted one is never gated (re-acquisition); if it would have failed the
-gate, the position and velocity covariance is inflated first (:func:`kfusion.kalman.model.
-reacquisition_inflation`) so that the fix re-initialises the position.
+rejecting good fixes then makes it drift away from them. While the prediction is valid (at most
+``max_bridge_s`` after the last accepted fix) a fix that fails the gate is rejected however long
+the gap: time alone never makes a disagreeing fix a re-acquisition (a marker swap lasting longer
+than ``reacquire_after_s`` stays rejected, and the output is ``bridged`` with the honest bound
+of the prediction, then ``lost``). Past ``max_bridge_s`` the state is lost and the next fix is
+taken (re-acquisition): if it would have failed the gate, the position and velocity covariance is
+inflated first (:func:`kfusion.kalman.model.reacquisition_inflation`) so that the fix
+re-initialises the position. A fix passing the gate ``reacquire_after_s`` or more after the last
+one is labelled ``reacquired``.
+
+Orientation fixes are gated too, against the gyroscope-propagated orientation
+(:func:`kfusion.streamhealth.orientation_gated`): a flipped rigid body is used as a position-only
+fix (counted ``orientation_gated``) while an accepted orientation is at most ``max_bridge_s``
+old.
+
+IMU stream health (:mod:`kfusion.streamhealth`): the last IMU sample is held for at most
+``imu_dropout_s``; an interval not covered by the IMU (none received, a stalled stream, a dropout)
+follows a no-IMU constant-velocity model with an honest acceleration noise, so fixes still pass
+the gate and give the position, and the gap after it is ``lost``, never dead-reckoned
+(:meth:`KalmanFusion.dead_reckoning_until`).
 
 Honest covariance on real sensors (each term derived in :mod:`kfusion.kalman.model`): besides the
 profile's white noise and bias walk, the bias state absorbs the orientation error grown through a
@@ -68,6 +84,7 @@ absurd interval) forgets the state (``resets``): the output is ``lost`` until th
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import Any, Final
@@ -76,6 +93,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
+from kfusion import streamhealth
 from kfusion.conventions import BRIDGED, LOST, QUATERNION_NORM_TOLERANCE, TRACKED
 from kfusion.guards import refuse_masked
 from kfusion.kalman import model
@@ -83,8 +101,10 @@ from kfusion.kalman.orientation import (
     OrientationState,
     OrientationTracker,
     Quaternion,
+    conjugate,
     matrix_from_quaternion,
     normalise,
+    quaternion_log,
     quaternion_product,
 )
 from kfusion.kalman.parameters import KalmanParameters
@@ -97,7 +117,8 @@ OCCLUDED: Final = "occluded"
 GATED: Final = "gated"
 """The fix failed the chi-square gate (marker swap, jump): rejected, counted."""
 REACQUIRED: Final = "reacquired"
-"""First fix at least ``reacquire_after_s`` after the last accepted one: fused without gating."""
+"""Fix fused at least ``reacquire_after_s`` after the last accepted one (passing the gate, or
+after the state was lost, ``max_bridge_s``, when it re-initialises the position)."""
 INITIALISED: Final = "initialised"
 """First fix ever: the state was initialised from it."""
 USED_OUTCOMES: Final = (ACCEPTED, REACQUIRED, INITIALISED)
@@ -114,13 +135,16 @@ COUNTER_NAMES: Final = (
     "predictions", "imu_rejected", "imu_duplicates", "imu_dropouts", "imu_late",
     "accelerometer_saturated", "gyroscope_saturated",
     "updates", "occluded", "gated", "reacquired", "initialised", "no_orientation", "resets",
+    "imu_outages", "orientation_gated",
 )
 """Keys of :attr:`KalmanFusion.counters`. ``updates`` counts every fix fused (accepted,
 reacquired and initialised); ``no_orientation`` counts fixes without a quaternion before the
 orientation was known (treated as occluded); ``imu_dropouts`` intervals longer than
 ``imu_dropout_s``; ``imu_late`` samples not after the state's time; ``resets`` propagations that
 overflowed (the state is then forgotten and re-initialised by the next fix); ``imu_rejected``
-samples with NaN, inf or a value beyond :data:`kfusion.kalman.model.IMPLAUSIBLE_SAMPLE`."""
+samples with NaN, inf or a value beyond :data:`kfusion.kalman.model.IMPLAUSIBLE_SAMPLE`;
+``imu_outages`` intervals propagated without IMU (:mod:`kfusion.streamhealth`);
+``orientation_gated`` fixes whose orientation failed the gyroscope gate (position still used)."""
 
 Vector3 = tuple[float, float, float]
 
@@ -199,6 +223,9 @@ class KalmanSnapshot:
     last_fix: float | None
     last_nis: float
     counters: dict[str, int] = field(default_factory=dict)
+    outage_since_fix: bool = False
+    last_orientation_fix: float | None = None
+    imu_interval: float | None = None
 
 
 def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
@@ -285,6 +312,9 @@ class KalmanFusion:
         self._initialised = False
         self._last_fix: float | None = None
         self._last_nis = math.nan
+        self._outage_since_fix = False  # an interval without IMU since the last fix
+        self._imu_interval: float | None = None  # the last interval between IMU samples, s
+        self._last_orientation_fix: float | None = None
         self._counters = dict.fromkeys(COUNTER_NAMES, 0)
         # smoother support (see kfusion.kalman.smoother): product of the transitions since the
         # smoother last reset it, and the prior of the last fused fix
@@ -317,6 +347,17 @@ class KalmanFusion:
     def initialised(self) -> bool:
         """True once a fix has initialised the position."""
         return self._initialised
+
+    def dead_reckoning_until(self) -> float:
+        """Time (s) up to which the state is IMU-propagated since the last fix
+        (:func:`kfusion.streamhealth.dead_reckoning_until`): later, a gap is ``lost``."""
+        return streamhealth.dead_reckoning_until(self._imu_time, self._hold_s(),
+                                                 self._outage_since_fix)
+
+    def _hold_s(self) -> float:
+        """How long the last IMU sample may be held (:func:`kfusion.streamhealth.
+        hold_horizon`)."""
+        return streamhealth.hold_horizon(self._imu_interval, self.params.imu_dropout_s)
 
     @property
     def estimates_lever_arm(self) -> bool:
@@ -374,8 +415,8 @@ class KalmanFusion:
         Returns:
             :class:`UpdateOutcome`. A fix is gated when its NIS exceeds the chi-square quantile
             of ``gate_probability`` and its innovation is longer than ``gate_min_innovation``,
-            unless it comes ``reacquire_after_s`` or more after the last
-            accepted fix: then it is accepted as a re-acquisition (after inflating the position
+            unless it comes more than ``max_bridge_s`` after the last accepted fix (the state is
+            lost): then it is accepted as a re-acquisition (after inflating the position
             and velocity covariance if it would have failed the gate).
         """
         t = float(t)
@@ -415,7 +456,7 @@ class KalmanFusion:
         since = t - self._last_fix if self._last_fix is not None else math.inf
         if since == 0.0:
             status = TRACKED
-        elif since <= self.params.max_bridge_s:
+        elif since <= self.params.max_bridge_s and t <= self.dead_reckoning_until():
             status = BRIDGED
         else:
             status = LOST
@@ -449,6 +490,9 @@ class KalmanFusion:
             last_fix=self._last_fix,
             last_nis=self._last_nis,
             counters=dict(self._counters),
+            outage_since_fix=self._outage_since_fix,
+            last_orientation_fix=self._last_orientation_fix,
+            imu_interval=self._imu_interval,
         )
 
     def restore(self, snapshot: KalmanSnapshot) -> None:
@@ -475,6 +519,9 @@ class KalmanFusion:
         self._last_fix = snapshot.last_fix
         self._last_nis = snapshot.last_nis
         self._counters = dict(snapshot.counters)
+        self._outage_since_fix = snapshot.outage_since_fix
+        self._last_orientation_fix = snapshot.last_orientation_fix
+        self._imu_interval = snapshot.imu_interval
 
     # ------------------------------------------------------------------ internals
 
@@ -500,6 +547,8 @@ class KalmanFusion:
         self._gyroscope = omega
         self._accelerometer_extra_variance = accelerometer_extra
         self._gyroscope_extra_variance = gyroscope_extra
+        if self._imu_time is not None:
+            self._imu_interval = t - self._imu_time
         self._imu_stamp = stamp
         self._imu_time = t
         self._counters["predictions"] += 1
@@ -541,13 +590,58 @@ class KalmanFusion:
                  omega_end: Vector3 | None = None) -> None:
         """Propagate orientation and state from the state's time to t (s). With ``f_end``,
         ``omega_end`` (a new sample at t) the signals are linear over the interval; without,
-        the held sample is held."""
+        the held sample is held, for at most ``imu_dropout_s`` after its time. The part of the
+        interval the IMU does not cover (nothing received, a stalled stream, a dropout) follows
+        the no-IMU model (:meth:`_advance_without_imu`)."""
         if self._time is None:
             self._time = t
             return
-        dt = t - self._time
-        if dt <= 0.0:
+        if t - self._time <= 0.0:
             return
+        covered = streamhealth.imu_interval_split(self._time, t, self._imu_time,
+                                                  self.params.imu_dropout_s, self._hold_s(),
+                                                  f_end is not None)
+        if covered < t:
+            if covered > self._time:
+                self._advance_with_imu(covered, None, None)
+            self._advance_without_imu(t)
+            return
+        self._advance_with_imu(t, f_end, omega_end)
+
+    def _advance_without_imu(self, t: float) -> None:
+        """No IMU over [state time, t]: constant velocity with white acceleration
+        (:func:`kfusion.streamhealth.no_imu_transition`, :func:`~kfusion.streamhealth.
+        no_imu_process_noise`); the orientation becomes unknown (the next mocap orientation is
+        taken as it is) and the gap is not dead-reckoned (``lost`` until the next fix)."""
+        assert self._time is not None
+        dt = t - self._time
+        if self._initialised:
+            F = streamhealth.no_imu_transition(dt, self.size)
+            Q = streamhealth.no_imu_process_noise(dt, self.size,
+                                                  self.params.accelerometer_bias_random_walk)
+            with np.errstate(over="ignore", invalid="ignore"):
+                self._kf.x = F @ self._kf.x
+                self._kf.P = F @ self._kf.P @ F.T + Q
+                self._symmetrise()
+            if self._interval is not None:
+                self._interval = F @ self._interval
+            if not self._outage_since_fix:
+                self._counters["imu_outages"] += 1
+            self._outage_since_fix = True
+            if not self._finite():
+                self._reset()
+        state = self._orientation.state
+        if state.initialised:
+            state.covariance = (streamhealth.ORIENTATION_UNKNOWN_VARIANCE, 0.0,
+                                state.covariance[2])
+            self._R_current = None
+        self._time = t
+
+    def _advance_with_imu(self, t: float, f_end: Vector3 | None,
+                          omega_end: Vector3 | None) -> None:
+        """:meth:`_advance` over an interval the IMU covers."""
+        assert self._time is not None
+        dt = t - self._time
         orientation = self._orientation
         if self._accelerometer is not None and orientation.state.initialised:
             f0, f1, omega0, omega1 = self._interval_ends(t, f_end, omega_end)
@@ -600,6 +694,9 @@ class KalmanFusion:
             q_global_imu = normalise(quaternion_product(
                 (float(q_global_body[0]), float(q_global_body[1]), float(q_global_body[2]),
                  float(q_global_body[3])), self._q_body_imu))
+            if self._orientation_disagrees(t, q_global_imu):
+                self._counters["orientation_gated"] += 1
+                q_global_imu = None  # a position-only fix: the orientation stays the gyro's
         if not self._orientation.state.initialised:
             if q_global_imu is None:
                 self._counters["no_orientation"] += 1
@@ -607,6 +704,7 @@ class KalmanFusion:
                 return UpdateOutcome(t, OCCLUDED, math.nan)
             self._orientation.initialise(q_global_imu)
             self._R_current = None
+            self._last_orientation_fix = t
         H, offset = self._output_map(q_global_imu if q_global_imu is not None
                                      else self._orientation.state.quaternion)
         if not self._initialised:  # the orientation was initialised from this frame above
@@ -624,6 +722,12 @@ class KalmanFusion:
             return UpdateOutcome(t, GATED, nis)
         since = t - self._last_fix if self._last_fix is not None else math.inf
         kind = ACCEPTED
+        failed = nis > self._gate and float(y @ y) > self.params.gate_min_innovation ** 2
+        if failed and since <= self.params.max_bridge_s:
+            # the prediction is still valid: a fix that disagrees with it is a jump or a marker
+            # swap, however long ago the last fix was (never a re-acquisition by time alone)
+            self._counters["gated"] += 1
+            return UpdateOutcome(t, GATED, nis)
         if since >= self.params.reacquire_after_s:
             kind = REACQUIRED
             if nis > self._gate:
@@ -632,9 +736,6 @@ class KalmanFusion:
                 P[model.POSITION, model.POSITION] += position_variance * np.eye(3)
                 P[model.VELOCITY, model.VELOCITY] += velocity_variance * np.eye(3)
                 self._kf.P = P
-        elif nis > self._gate and float(y @ y) > self.params.gate_min_innovation ** 2:
-            self._counters["gated"] += 1
-            return UpdateOutcome(t, GATED, nis)
         if self._interval is not None:
             self._prior = (np.array(self._kf.x, dtype=float), np.array(self._kf.P, dtype=float))
         self._kf.update(z - offset, H=H)
@@ -642,6 +743,7 @@ class KalmanFusion:
         if q_global_imu is not None:
             self._orientation.correct(q_global_imu)
             self._R_current = None
+            self._last_orientation_fix = t
         self._mark_fix(t)
         if kind == REACQUIRED:
             self._counters["reacquired"] += 1
@@ -662,9 +764,25 @@ class KalmanFusion:
         self._kf.x = np.zeros(self.size)
         self._kf.P = np.eye(self.size)
         self._last_fix = None
+        self._last_orientation_fix = None
         self._counters["resets"] += 1
 
+    def _orientation_disagrees(self, t: float, q_global_imu: Quaternion) -> bool:
+        """The mocap orientation fails the gate against the gyroscope-propagated one
+        (:func:`kfusion.streamhealth.orientation_gated`), while that one is still valid (an
+        accepted orientation at most ``max_bridge_s`` ago)."""
+        state = self._orientation.state
+        if not (state.initialised and self.params.gating and self._last_orientation_fix
+                is not None and t - self._last_orientation_fix <= self.params.max_bridge_s):
+            return False
+        innovation = quaternion_log(quaternion_product(conjugate(state.quaternion),
+                                                       q_global_imu))
+        return streamhealth.orientation_gated(innovation, state.covariance[0],
+                                              self._orientation.measurement_variance,
+                                              self._gate)
+
     def _mark_fix(self, t: float) -> None:
+        self._outage_since_fix = False
         self._last_fix = t
         self._counters["updates"] += 1
 
@@ -726,17 +844,17 @@ class KalmanFusion:
                 or not orientation.state.initialised or not self._initialised):
             return (np.array(self._kf.x, dtype=float), np.array(self._kf.P, dtype=float),
                     orientation.state.quaternion)
-        saved = orientation.state.copy()
+        scratch = copy.copy(orientation)  # propagate a copy: estimate() never changes the state
+        scratch.state = orientation.state.copy()
         f, omega = self._accelerometer, self._gyroscope
-        R0 = orientation.matrix()
-        angle_variance = orientation.angle_variance
-        orientation.propagate(omega, omega, dt, self._gyroscope_extra_variance * dt * dt)
-        quaternion = orientation.state.quaternion
-        R1 = orientation.matrix()
+        R0 = scratch.matrix()
+        angle_variance = scratch.angle_variance
+        scratch.propagate(omega, omega, dt, self._gyroscope_extra_variance * dt * dt)
+        quaternion = scratch.state.quaternion
+        R1 = scratch.matrix()
         bias_variance = model.orientation_leak_variance(
-            f[0] * f[0] + f[1] * f[1] + f[2] * f[2], orientation.angle_variance - angle_variance,
+            f[0] * f[0] + f[1] * f[1] + f[2] * f[2], scratch.angle_variance - angle_variance,
             self.params.tilt_error_inflation)
-        orientation.state = saved
         u = model.control_input(f, f, self._gravity)
         Q = model.process_noise(dt, self.params.accelerometer_noise_density,
                                 self.params.accelerometer_bias_random_walk,

@@ -172,7 +172,10 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None,
     t = np.array(recording.mocap.t)
     fixed = recorder.fixed
     filtered_status, since = status_from_fixes(t, fixed, recorder.initialised,
-                                               params.max_bridge_s)
+                                               params.max_bridge_s, recorder.dead_reckoned)
+    # a gap the IMU did not cover (the forward pass's no-IMU rows) is lost for the smoother too
+    smoothed_status = smoother_status(t, fixed, params.max_bridge_s)
+    smoothed_status[~fixed & ~recorder.dead_reckoned] = LOST
 
     def track(x: NDArray, P: NDArray, status: NDArray, method: str) -> TrackResult:
         position, std = point_estimates(x, P, recorder.output_matrix, recorder.output_offset)
@@ -180,8 +183,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None,
                            time_since_fix=since, method=method)
 
     return SmootherRun(
-        result=track(x_smoothed, P_smoothed, smoother_status(t, fixed, params.max_bridge_s),
-                     "smoother"),
+        result=track(x_smoothed, P_smoothed, smoothed_status, "smoother"),
         filtered=track(x_filtered, P_filtered, filtered_status, "kalman"),
         x=x_smoothed, P=P_smoothed, x_filtered=x_filtered, P_filtered=P_filtered,
         outcome=recorder.outcome.astype(str), nis=recorder.nis, params=params)
