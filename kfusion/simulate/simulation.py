@@ -39,7 +39,12 @@ from kfusion.conventions import (
 )
 from kfusion.profiles import ImuProfile, MocapProfile, imu_profile, mocap_profile
 from kfusion.recording import ImuSamples, MocapFrames, Recording, RecordingInfo
-from kfusion.simulate.imu import simulate_imu
+from kfusion.simulate.imu import (
+    UnmodelledErrors,
+    apply_unmodelled,
+    jittered_stamps,
+    simulate_imu,
+)
 from kfusion.simulate.mocap import measure_mocap, rotation_vector_quaternion
 from kfusion.simulate.occlusions import OcclusionSpec, place_occlusions
 from kfusion.simulate.scenarios import BUILDERS, DEFAULT_DURATIONS, MIN_DURATION
@@ -180,6 +185,7 @@ def simulate(
     duration: float | None = None,
     imu_rate: float = 200.0,
     mocap_rate: float | None = None,
+    unmodelled: UnmodelledErrors | None = None,
 ) -> Simulation:
     """Simulate ``scenario`` (one of :data:`SCENARIOS`) and return recording plus truth.
 
@@ -192,6 +198,9 @@ def simulate(
         duration: s, at least 5; None for the scenario's default (30-45 s).
         imu_rate: IMU sample rate, Hz.
         mocap_rate: mocap frame rate, Hz; None for the mocap profile's rate.
+        unmodelled: IMU error sources the filter's model does not have (misalignment,
+            g-sensitivity, temperature drift, timestamp jitter); None or all zero: none, and
+            the simulation is the same as without the argument.
 
     Raises ValueError on an unknown scenario or profile, bad numbers, or when the occlusion spec
     fits no gap.
@@ -224,7 +233,14 @@ def simulate(
     R_imu_global = np.transpose(matrix_from_wxyz(q_global_imu), (0, 2, 1))
     true_force = specific_force(R_imu_global, dense.acceleration, gravity)
     true_rate = dense.angular_rate @ R_imu_body.T
-    measured = simulate_imu(imu_rng, imu_object, 1.0 / imu_rate, true_force, true_rate)
+    sensed_force, sensed_rate, imu_stamps = true_force, true_rate, imu_t
+    if unmodelled is not None and unmodelled.active:
+        # a stream of its own, so that the other draws stay the same
+        extra_rng = np.random.default_rng([int(seed), 0x756E6D6F])
+        sensed_force, sensed_rate = apply_unmodelled(extra_rng, unmodelled, imu_t, true_force,
+                                                     true_rate)
+        imu_stamps = jittered_stamps(extra_rng, imu_t, unmodelled.timestamp_jitter)
+    measured = simulate_imu(imu_rng, imu_object, 1.0 / imu_rate, sensed_force, sensed_rate)
 
     # mocap frames
     mocap_t = sample_times(length, mocap_rate)
@@ -237,7 +253,7 @@ def simulate(
                                          frames.quaternion, occluded)
 
     recording = Recording(
-        imu=ImuSamples(t=imu_t, accelerometer=measured.accelerometer,
+        imu=ImuSamples(t=imu_stamps, accelerometer=measured.accelerometer,
                        gyroscope=measured.gyroscope),
         mocap=MocapFrames(t=mocap_t, position=position, quaternion=quaternion),
         info=RecordingInfo(imu_to_body=q_body_imu, gravity=gravity,
