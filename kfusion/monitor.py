@@ -8,22 +8,25 @@ Two tests run on the fixes the filter sees anyway (GUIDE §10, "sensor quality")
   (:func:`nis_matching_scale`).
 * **Shadow gaps.** Every ``shadow_period_s`` a copy of the filter (restored from a snapshot right
   after a fused fix) runs on the IMU alone for ``shadow_window_s``, as if the mocap had been
-  occluded. At each fix that follows, the shadow's rigid-body point is compared with the fix:
-  ``d^2 = e^T P_p^-1 e`` with ``e = z - p_shadow`` and ``P_p`` the shadow's own position
-  covariance (:func:`normalised_error_squared`). The fix is the reference the bound is scored
-  against, so its noise is part of what the bound must hold. If the filter's growth of P in a
-  gap were right, ``d^2 ~ chi-square(3)``.
+  occluded. At each fix that follows, the shadow's rigid-body point is compared with the fix,
+  ``e = z - p_shadow``, against its covariance ``S = P_p + R`` (the shadow's position
+  covariance and the mocap noise): the shadow gap's innovation. R is the configured mocap noise,
+  matched down by the windowed NIS when that shows it pessimistic (``R mean NIS / 3`` once the
+  window is full and the mean is below 3).
 
-Shadow-gap errors are kept per horizon bin (time since the shadow's last fix): for each shadow
-gap the largest ``d^2`` it reached inside the bin (one value per gap and bin, so the strongly
-correlated rows of one gap do not count as independent evidence), over the last ``memory`` gaps.
-The variance scale that makes the bound at ``confidence`` cover them is the covariance-matching
-quantile
+Each shadow row gives the variance scale it needed (:func:`required_scale`): the smallest s for
+which ``s S`` holds e both ways kfusion's bound is read, inside the confidence-c ellipsoid
+(``d^2 = e^T S^-1 e <= s F^-1_chi2(3)(c)``) and inside 3 sigma on every axis. If the filter's
+growth of P in a gap were right, ``d^2 ~ chi-square(3)`` and s <= 1 at the rate c. The scale is
+applied to the reported ``P_p`` (where a gap's P_p dominates R, the two are the same). Scales are
+kept per horizon bin (time since the shadow's last fix) over the last ``memory`` rows, and the
+scale of a bin is covariance matching at a quantile (:func:`quantile_matching_scale`):
 
-    s(bin) = quantile_c({max d^2}) / F^-1_chi2(3)(c)          (:func:`quantile_matching_scale`)
+    s(bin) = quantile_q({s_k in bin}),  q = matching_quantile
 
 clipped to ``[minimum_scale, inf)``. A real gap's position covariance is reported as
-``max(s(bin(h)), s_NIS) P`` at horizon h (beyond the last bin, the last bin's scale): the bound
+``max(s(bin(h)), s_NIS) P`` at horizon h (beyond the last bin, the last bin's scale), where
+``s_NIS = mean NIS / 3`` when the windowed NIS test fails high (else no constraint): the bound
 grows as the shadow gaps showed it must, not only as the profile predicts, and shrinks (down to
 ``minimum_scale``) where the profile is pessimistic. Until ``minimum_shadow_gaps`` gaps have been
 seen the scale is at least 1 (the profile).
@@ -54,7 +57,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 if TYPE_CHECKING:
-    from kfusion.kalman.filter import KalmanFusion, UpdateOutcome
+    from kfusion.kalman.filter import KalmanFusion, KalmanSnapshot, UpdateOutcome
 
 CONSISTENT: Final = "consistent"
 GRAVITY: Final = "gravity direction, sign or units"
@@ -219,6 +222,14 @@ def suspected_cause(std_scale: float, nis_consistent: bool, nis_scale: float,
     return CONSISTENT
 
 
+def bridging_allowed(std_scale: float, shadow_gaps: int, params: MonitorParameters) -> bool:
+    """The refusal rule: bridge only while ``std_scale <= max_std_scale``, and, before
+    ``minimum_shadow_gaps`` shadow gaps, only while ``std_scale <= cause_std_scale``."""
+    limit = (params.max_std_scale if shadow_gaps >= params.minimum_shadow_gaps
+             else params.cause_std_scale)
+    return std_scale <= limit
+
+
 # ---------------------------------------------------------------------------------------------
 # Parameters, report, state
 # ---------------------------------------------------------------------------------------------
@@ -235,8 +246,12 @@ class MonitorParameters:
         shadow_period_s: a shadow gap starts at the first fused fix this long after the previous
             one started, s (>= shadow_window_s; the cost is about window/period of a filter).
         horizon_edges_s: upper edges of the horizon bins, s, increasing.
-        memory: shadow gaps remembered per bin.
-        confidence: the bound the scale is matched at.
+        holdout_edges_s: the same for the smoother's hold-out gaps (distance to the nearest
+            fix; the smoother's error varies faster with it than the filter's).
+        memory: shadow-gap rows remembered per bin (about 5-10 per gap and bin at 100 Hz).
+        confidence: the bound the scale is matched at (chi-square quantile of the radius).
+        matching_quantile: quantile of the rows' required scales that the scale matches: a
+            little above ``confidence``, since the next gap is not one of the shadow gaps.
         minimum_shadow_gaps: gaps needed before the scale may fall below 1.
         minimum_scale: smallest variance scale (the profile may be pessimistic, but only so far).
         max_std_scale: beyond this standard-deviation scale the monitor refuses to bridge.
@@ -252,11 +267,13 @@ class MonitorParameters:
     shadow_window_s: float = 0.3
     shadow_period_s: float = 0.6
     horizon_edges_s: tuple[float, ...] = (0.05, 0.1, 0.2, 0.3)
-    memory: int = 40
+    holdout_edges_s: tuple[float, ...] = (0.02, 0.04, 0.06, 0.08, 0.1, 0.15, 0.2, 0.3, 0.5)
+    memory: int = 400
     confidence: float = 0.99
+    matching_quantile: float = 0.995
     minimum_shadow_gaps: int = 10
-    minimum_scale: float = 0.25
-    max_std_scale: float = 10.0
+    minimum_scale: float = 0.04
+    max_std_scale: float = 5.0
     cause_std_scale: float = 2.0
     gravity_error_fraction: float = 0.5
     motion_error_acceleration: float = 2.0
@@ -273,20 +290,21 @@ class MonitorParameters:
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"MonitorParameters.{name}: expected an integer >= 1, "
                                  f"got {value!r}")
-        for name in ("nis_probability", "confidence"):
+        for name in ("nis_probability", "confidence", "matching_quantile"):
             value = getattr(self, name)
-            if not 0.0 < value < 1.0:
+            if not 0.0 < value < 1.0 and not (name == "matching_quantile" and value == 1.0):
                 raise ValueError(f"MonitorParameters.{name}: expected a probability in (0, 1), "
                                  f"got {value!r}")
-        edges = tuple(float(edge) for edge in self.horizon_edges_s)
-        if not edges or any(b <= a for a, b in zip(edges, edges[1:], strict=False)) \
-                or edges[0] <= 0:
-            raise ValueError(f"MonitorParameters.horizon_edges_s: expected increasing positive "
-                             f"times, got {self.horizon_edges_s!r}")
+        for name in ("horizon_edges_s", "holdout_edges_s"):
+            edges = tuple(float(edge) for edge in getattr(self, name))
+            if not edges or any(b <= a for a, b in zip(edges, edges[1:], strict=False)) \
+                    or edges[0] <= 0:
+                raise ValueError(f"MonitorParameters.{name}: expected increasing positive "
+                                 f"times, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, edges)
         if self.shadow_period_s < self.shadow_window_s:
             raise ValueError(f"MonitorParameters.shadow_period_s: expected >= shadow_window_s "
                              f"({self.shadow_window_s}), got {self.shadow_period_s}")
-        object.__setattr__(self, "horizon_edges_s", edges)
 
 
 @dataclass(frozen=True)
@@ -318,7 +336,7 @@ class MonitorReport:
 
 
 class HorizonScales:
-    """Per-bin memory of the largest ``d^2`` each gap reached, and the matched scales.
+    """Per-bin memory of the scales the rows of the last gaps needed, and the matched scales.
 
     Shared by the online monitor (shadow gaps of the filter) and the smoother's offline
     hold-out (:func:`kfusion.kalman.smoother.run_smoother`)."""
@@ -326,29 +344,25 @@ class HorizonScales:
     def __init__(self, params: MonitorParameters) -> None:
         self.params = params
         bins = len(params.horizon_edges_s)
-        self._worst: list[deque[float]] = [deque(maxlen=params.memory) for _ in range(bins)]
+        self._rows: list[deque[float]] = [deque(maxlen=params.memory) for _ in range(bins)]
         self.gaps = 0
         self._table: NDArray[np.float64] | None = None  # cache of scale_table()
 
-    def add_gap(self, horizons_s: ArrayLike, normalised: ArrayLike) -> None:
-        """One gap's rows: horizon (k,) s and ``d^2`` (k,)."""
+    def add_gap(self, horizons_s: ArrayLike, required: ArrayLike) -> None:
+        """One gap's rows: horizon (k,) s and the scale each row needed (k,)."""
         horizons = np.asarray(horizons_s, dtype=float)
-        values = np.asarray(normalised, dtype=float)
+        values = np.asarray(required, dtype=float)
         if len(horizons) == 0:
             return
-        worst: dict[int, float] = {}
         for horizon, value in zip(horizons.tolist(), values.tolist(), strict=True):
-            index = horizon_bin(horizon, self.params.horizon_edges_s)
-            worst[index] = max(worst.get(index, -math.inf), value)
-        for index, value in worst.items():
-            self._worst[index].append(value)
+            self._rows[horizon_bin(horizon, self.params.horizon_edges_s)].append(value)
         self.gaps += 1
         self._table = None
 
     def variance_scales(self) -> tuple[float, ...]:
         """Matched variance scale per bin (NaN where the bin has no evidence), before limits."""
-        return tuple(quantile_matching_scale(list(worst), self.params.confidence)
-                     for worst in self._worst)
+        return tuple(quantile_matching_scale(list(rows), self.params.matching_quantile)
+                     for rows in self._rows)
 
     def scale_table(self) -> NDArray[np.float64]:
         """(bins,) variance scale applied per bin: the matched scale, at least ``minimum_scale``
@@ -396,9 +410,9 @@ class ConsistencyMonitor:
         self._start: float | None = None  # time of the running shadow gap's last fix
         self._next_start = -math.inf
         self._rows_h: list[float] = []
-        self._rows_d2: list[float] = []
+        self._rows_scale: list[float] = []
         self._rows_error: list[NDArray[np.float64]] = []
-        self._accelerations: deque[NDArray[np.float64]] = deque(maxlen=self.params.memory)
+        self._accelerations: deque[NDArray[np.float64]] = deque(maxlen=self.params.nis_window)
 
     # -------------------------------------------------------------- events
 
@@ -421,9 +435,11 @@ class ConsistencyMonitor:
             if outcome.kind == ACCEPTED and position is not None:
                 estimate = self._shadow.estimate()
                 error = np.asarray(position, dtype=float) - estimate.position
+                noise = self._mocap_noise_variance()
                 self._rows_h.append(horizon)
-                self._rows_d2.append(required_scale(error, estimate.position_covariance,
-                                                    self.params.confidence))
+                self._rows_scale.append(required_scale(
+                    error, estimate.position_covariance + noise * np.eye(3),
+                    self.params.confidence))
                 self._rows_error.append(error)
             if horizon >= self.params.shadow_window_s or outcome.kind not in USED_OUTCOMES:
                 self._close()
@@ -432,14 +448,23 @@ class ConsistencyMonitor:
             self._start = t
             self._next_start = t + self.params.shadow_period_s
 
+    def _mocap_noise_variance(self) -> float:
+        """R of the shadow innovation, m^2: the configured mocap noise, times the NIS matching
+        factor when that is below 1 (at fixes R dominates S, so a small NIS says R is
+        pessimistic; a pessimistic R would hide the shadow's error)."""
+        configured = self._shadow.params.mocap_position_noise ** 2
+        if len(self._nis) < self.params.nis_window:
+            return configured
+        return configured * min(1.0, nis_matching_scale(list(self._nis)))
+
     def _close(self) -> None:
         """End the running shadow gap and keep its evidence."""
         if self._rows_h:
-            self._scales.add_gap(self._rows_h, self._rows_d2)
+            self._scales.add_gap(self._rows_h, self._rows_scale)
             self._accelerations.append(fit_acceleration_error(self._rows_h,
                                                               np.array(self._rows_error)))
         self._start = None
-        self._rows_h, self._rows_d2, self._rows_error = [], [], []
+        self._rows_h, self._rows_scale, self._rows_error = [], [], []
 
     # -------------------------------------------------------------- results
 
@@ -461,8 +486,10 @@ class ConsistencyMonitor:
 
     @property
     def bridging_allowed(self) -> bool:
-        """False when the shadow gaps need a larger std scale than ``max_std_scale``."""
-        return self._std_scale() <= self.params.max_std_scale
+        """False when the shadow gaps need a larger std scale than ``max_std_scale``, or, while
+        fewer than ``minimum_shadow_gaps`` gaps are in, one above ``cause_std_scale`` (thin
+        evidence of a broken model: its scale is not yet known well enough to bridge on)."""
+        return bridging_allowed(self._std_scale(), self._scales.gaps, self.params)
 
     def _std_scale(self) -> float:
         return math.sqrt(max(float(self._scales.scale_table().max()), self._nis_scale()))
@@ -476,7 +503,8 @@ class ConsistencyMonitor:
 
     def restore(self, snapshot: object) -> None:
         """Continue from a :meth:`snapshot` of a monitor with the same configuration."""
-        state, shadow = snapshot  # type: ignore[misc]
+        state: dict[str, object] = snapshot[0]  # type: ignore[index]
+        shadow: KalmanSnapshot | None = snapshot[1]  # type: ignore[index]
         vars(self).update(copy.deepcopy(state))
         if shadow is not None:
             self._shadow.restore(shadow)
@@ -490,5 +518,6 @@ class ConsistencyMonitor:
                                 self._gravity, self.params)
         return MonitorReport(nis=test, shadow_gaps=self._scales.gaps,
                              variance_scale=self._scales.variance_scales(), std_scale=std_scale,
-                             bridging_allowed=std_scale <= self.params.max_std_scale,
+                             bridging_allowed=bridging_allowed(std_scale, self._scales.gaps,
+                                                               self.params),
                              suspected_cause=cause)

@@ -35,6 +35,7 @@ one more smoother pass over the recording (skipped when it has no gap to bridge)
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -56,7 +57,13 @@ from kfusion.kalman.batch import (
 )
 from kfusion.kalman.filter import INITIALISED, UpdateOutcome
 from kfusion.kalman.parameters import KalmanParameters
-from kfusion.monitor import HorizonScales, MonitorParameters, MonitorReport, required_scale
+from kfusion.monitor import (
+    HorizonScales,
+    MonitorParameters,
+    MonitorReport,
+    bridging_allowed,
+    required_scale,
+)
 from kfusion.recording import Recording, occlusion_durations, occlusion_runs
 from kfusion.track import TrackResult
 
@@ -172,8 +179,11 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     """The smoother's shadow gaps: hide visible fixes in gaps as long as the recording's own
     (those up to ``max_bridge_s``), smooth the copy, and collect per gap the variance scale
     each hidden fix needed (:func:`kfusion.monitor.required_scale`) by its distance to the
-    nearest fix. None when the recording has no gap to bridge or no room for a hold-out gap.
-    Hold-out gaps sit where the mocap is visible for 0.5 s before and through them."""
+    nearest fix, in the bins ``monitor.holdout_edges_s``. The error is taken against the
+    smoothed covariance alone: the hidden fix is the reference the bound is scored against, and
+    the smoothed P is of the order of the mocap noise. None when the recording has no gap to
+    bridge or no room for a hold-out gap. Hold-out gaps sit where the mocap is visible for
+    0.5 s before and through them."""
     mocap = recording.mocap
     durations = occlusion_durations(mocap.t, mocap.visible)
     durations = durations[durations <= params.max_bridge_s]
@@ -188,9 +198,14 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
         return None
     run = run_smoother(hidden.recording, params, monitor=None)
     fixed = run.result.status == TRACKED
+    assert run.output_matrix is not None
     horizon = nearest_fix_distance(mocap.t, fixed)
     covariance = position_covariances(run.P, run.output_matrix)
-    scales = HorizonScales(dataclasses.replace(monitor, memory=len(mocap.t)))
+    # matched at the bound's own confidence: the hold-out gaps sample the same recording the
+    # real gaps are in (the online monitor's shadows predict gaps still to come)
+    scales = HorizonScales(dataclasses.replace(monitor, memory=len(mocap.t),
+                                               horizon_edges_s=monitor.holdout_edges_s,
+                                               matching_quantile=monitor.confidence))
     for start, stop in occlusion_runs(~hidden.gap_mask):
         rows = [row for row in range(start, stop) if run.result.status[row] == BRIDGED]
         scales.add_gap(horizon[rows], [
@@ -255,7 +270,8 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     if holdout is not None:
         bins = len(holdout.params.horizon_edges_s)
         table = np.broadcast_to(holdout.scale_table(), (m, bins))
-        allowed = np.full(m, float(table.max()) <= holdout.params.max_std_scale ** 2)
+        allowed = np.full(m, bridging_allowed(math.sqrt(float(table.max())), holdout.gaps,
+                                              holdout.params))
         status, std, _ = apply_monitor(status, std, table, allowed, nearest_fix_distance(t, fixed),
                                        holdout.params.horizon_edges_s)
     return SmootherRun(
