@@ -266,7 +266,7 @@ class MonitorParameters:
     nis_probability: float = 0.999
     shadow_window_s: float = 0.3
     shadow_period_s: float = 0.6
-    horizon_edges_s: tuple[float, ...] = (0.05, 0.1, 0.2, 0.3)
+    horizon_edges_s: tuple[float, ...] = (0.02, 0.04, 0.06, 0.08, 0.1, 0.15, 0.2, 0.3)
     holdout_edges_s: tuple[float, ...] = (0.02, 0.04, 0.06, 0.08, 0.1, 0.15, 0.2, 0.3, 0.5)
     memory: int = 400
     confidence: float = 0.99
