@@ -55,13 +55,14 @@ from kfusion.kalman.batch import (
     resolve_parameters,
     status_from_fixes,
 )
-from kfusion.kalman.filter import INITIALISED, UpdateOutcome
+from kfusion.kalman.filter import ACCEPTED, INITIALISED, UpdateOutcome
 from kfusion.kalman.parameters import KalmanParameters
 from kfusion.monitor import (
     HorizonScales,
     MonitorParameters,
     MonitorReport,
     bridging_allowed,
+    nis_matching_scale,
     required_scale,
 )
 from kfusion.recording import Recording, occlusion_durations, occlusion_runs
@@ -180,8 +181,9 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     (those up to ``max_bridge_s``), smooth the copy, and collect per gap the variance scale
     each hidden fix needed (:func:`kfusion.monitor.required_scale`) by its distance to the
     nearest fix, in the bins ``monitor.holdout_edges_s``. The error is taken against the
-    smoothed covariance alone: the hidden fix is the reference the bound is scored against, and
-    the smoothed P is of the order of the mocap noise. None when the recording has no gap to
+    smoothed covariance plus the hidden fix's noise R, with R matched down by the forward pass's
+    NIS when that is below 3 (the smoothed P is of the order of the mocap noise, so a wrong R
+    decides the scale). None when the recording has no gap to
     bridge or no room for a hold-out gap. Hold-out gaps sit where the mocap is visible for
     0.5 s before and through them."""
     mocap = recording.mocap
@@ -200,7 +202,11 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     fixed = run.result.status == TRACKED
     assert run.output_matrix is not None
     horizon = nearest_fix_distance(mocap.t, fixed)
-    covariance = position_covariances(run.P, run.output_matrix)
+    # the hidden fix's noise: R, matched down by the NIS when that shows it pessimistic (as in
+    # the online monitor's shadow innovations)
+    nis = run.nis[run.outcome == ACCEPTED]
+    noise = params.mocap_position_noise ** 2 * min(1.0, nis_matching_scale(nis))
+    covariance = position_covariances(run.P, run.output_matrix) + noise * np.eye(3)
     # matched at the bound's own confidence: the hold-out gaps sample the same recording the
     # real gaps are in (the online monitor's shadows predict gaps still to come)
     scales = HorizonScales(dataclasses.replace(monitor, memory=len(mocap.t),
