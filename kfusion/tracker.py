@@ -101,6 +101,7 @@ from kfusion.conventions import (
 )
 from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, short_repr
 from kfusion.kalman.filter import ACCEPTED, GATED, OCCLUDED, REACQUIRED
+from kfusion.monitor import MonitorReport
 from kfusion.profiles import ImuProfile, imu_profile
 from kfusion.recording import MAX_CLOCK_DRIFT_PPM, RecordingInfo
 from kfusion.streamhealth import (
@@ -547,25 +548,38 @@ class _KalmanEstimator:
     def __init__(self, imu_to_body: NDArray, gravity: NDArray, params: Any,
                  lever_arm: NDArray | None) -> None:
         from kfusion.kalman import KalmanFusion
+        from kfusion.monitor import ConsistencyMonitor
 
         self._fusion = KalmanFusion(imu_to_body, gravity, params, lever_arm=lever_arm)
+        # the consistency monitor (kfusion.monitor) with its shadow filter: scales the bound in
+        # gaps as the shadow gaps showed it must, or refuses to bridge (read() gives None)
+        self.monitor = ConsistencyMonitor(
+            KalmanFusion(imu_to_body, gravity, params, lever_arm=lever_arm), gravity=gravity)
         self.max_bridge_s = float(params.max_bridge_s)
         self.imu_dropout_s = float(params.imu_dropout_s)
         self.accelerometer_range = float(params.accelerometer_range)
 
     def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
         self._fusion.predict(t, accelerometer, gyroscope)
+        self.monitor.imu(t, accelerometer, gyroscope)
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str:
-        return _KALMAN_OUTCOMES[self._fusion.update(t, position, quaternion).kind]
+        outcome = self._fusion.update(t, position, quaternion)
+        self.monitor.mocap(t, position, outcome, self._fusion)
+        return _KALMAN_OUTCOMES[outcome.kind]
 
     def read(self, t: float) -> _Reading | None:
         if not self._fusion.initialised:
             return None
         step = self._fusion.estimate(t)  # new arrays
         covariance = step.position_covariance
-        return _Reading(step.position, step.velocity, 0.5 * (covariance + covariance.T),
-                        step.std)
+        std = step.std
+        if step.time_since_fix > 0.0:  # in a gap: the monitor's scale, or no bridging
+            if not self.monitor.bridging_allowed:
+                return None
+            scale = self.monitor.variance_scale(step.time_since_fix)
+            covariance, std = covariance * scale, std * math.sqrt(scale)
+        return _Reading(step.position, step.velocity, 0.5 * (covariance + covariance.T), std)
 
     def finite(self) -> bool:
         kf = self._fusion._kf  # read only, without the public properties' copies
@@ -582,10 +596,11 @@ class _KalmanEstimator:
         return int(self._fusion.counters["orientation_gated"])
 
     def snapshot(self) -> object:
-        return self._fusion.snapshot()
+        return self._fusion.snapshot(), self.monitor.snapshot()
 
     def restore(self, snapshot: object) -> None:
-        self._fusion.restore(snapshot)  # type: ignore[arg-type]
+        self._fusion.restore(snapshot[0])  # type: ignore[index]
+        self.monitor.restore(snapshot[1])  # type: ignore[index]
 
 
 _KALMAN_OUTCOMES: Final = {"accepted": ACCEPTED, "initialised": ACCEPTED, "reacquired": REACQUIRED,
@@ -1005,6 +1020,15 @@ class Tracker:
         """Time (s) of the newest fused sample; NaN before any. Not "now": after the streams
         stop it stays put, so pass the caller's current time to :meth:`estimate`."""
         return math.nan if self._book.key is None else self._book.key[0]
+
+    @property
+    @_locked
+    def consistency(self) -> MonitorReport | None:
+        """What the consistency monitor found (:mod:`kfusion.monitor`: windowed NIS, shadow
+        gaps, the bound's scale, whether it bridges, the suspected cause); None for the
+        baseline."""
+        monitor = getattr(self._estimator, "monitor", None)
+        return None if monitor is None else monitor.report()
 
     @property
     @_locked

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from kfusion.conventions import BRIDGED, LOST, TRACKED
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
 from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
+from kfusion.monitor import ConsistencyMonitor, MonitorParameters, MonitorReport
 from kfusion.recording import Recording
 from kfusion.track import TrackResult
 
@@ -47,11 +48,22 @@ def make_fusion(recording: Recording, params: KalmanParameters) -> KalmanFusion:
     return KalmanFusion(info.imu_to_body, info.gravity, params, lever_arm=info.lever_arm)
 
 
+def make_monitor(recording: Recording, params: KalmanParameters,
+                 monitor: MonitorParameters | None) -> ConsistencyMonitor | None:
+    """The consistency monitor of a run (None when ``monitor`` is None), with its own shadow
+    filter built like the main one."""
+    if monitor is None:
+        return None
+    return ConsistencyMonitor(make_fusion(recording, params), monitor, recording.info.gravity)
+
+
 def process_recording(recording: Recording, fusion: KalmanFusion,
-                      on_row: Callable[[int, UpdateOutcome], None]) -> None:
+                      on_row: Callable[[int, UpdateOutcome], None],
+                      monitor: ConsistencyMonitor | None = None) -> None:
     """Feed every IMU sample and mocap row to ``fusion`` in time order (IMU first at equal
     times) and call ``on_row(row, outcome)`` right after each mocap row. IMU samples after the
-    last mocap row are not fed (no output row would use them)."""
+    last mocap row are not fed (no output row would use them). ``monitor`` sees the same events
+    (after the filter)."""
     imu = recording.imu
     mocap = recording.mocap
     stamps = imu.t.tolist()
@@ -71,12 +83,16 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
                 fusion._predict_valid(stamp, (f[0], f[1], f[2]), (omega[0], omega[1], omega[2]))
             else:  # the public path rejects, skips or raises with its message
                 fusion.predict(stamp, accelerometer[i], gyroscope[i])
+            if monitor is not None:
+                monitor.imu(stamp, accelerometer[i], gyroscope[i])
             i += 1
-        if visible[row]:
-            outcome = fusion._update_valid(t, mocap.position[row].copy(),
-                                           mocap.quaternion[row].copy())
+        position = mocap.position[row].copy() if visible[row] else None
+        if position is not None:
+            outcome = fusion._update_valid(t, position, mocap.quaternion[row].copy())
         else:
             outcome = fusion.update(t, None, None)
+        if monitor is not None:
+            monitor.mocap(t, position, outcome, fusion)
         on_row(row, outcome)
 
 
@@ -95,6 +111,9 @@ class FilterRun:
         nis: (m,) NIS of the row's fix (NaN where none was compared).
         counters: final :attr:`KalmanFusion.counters`.
         params: the parameters used.
+        monitor: what the consistency monitor found at the end (None without a monitor).
+        variance_scale: (m,) factor applied to the row's position covariance by the monitor
+            (1 on tracked rows and without a monitor).
     """
 
     result: TrackResult
@@ -106,6 +125,8 @@ class FilterRun:
     nis: NDArray[np.float64]
     counters: dict[str, int]
     params: KalmanParameters
+    monitor: MonitorReport | None = None
+    variance_scale: NDArray[np.float64] | None = None
 
 
 def status_from_fixes(t: NDArray[np.float64], fixed: NDArray[np.bool_], initialised:
@@ -137,17 +158,45 @@ def point_estimates(x: NDArray[np.float64], P: NDArray[np.float64],
     """Rigid-body point ``H x + c`` (m, 3) and its 1-sigma per axis ``sqrt(diag(H P H^T))``
     (m, 3) from per-row states (m, n), covariances (m, n, n) and output maps."""
     position = np.einsum("mij,mj->mi", output_matrix, x) + output_offset
-    covariance = np.einsum("mij,mjk,mlk->mil", output_matrix, P, output_matrix)
-    std = np.sqrt(np.diagonal(covariance, axis1=1, axis2=2))
+    std = np.sqrt(np.diagonal(position_covariances(P, output_matrix), axis1=1, axis2=2))
     return position, std
 
 
-class _RowRecorder:
-    """Collects the filter's state and output map after each mocap row."""
+def position_covariances(P: NDArray[np.float64], output_matrix: NDArray[np.float64]
+                         ) -> NDArray[np.float64]:
+    """Rigid-body point covariance ``H P H^T`` per row (m, 3, 3) from (m, n, n) and (m, 3, n)."""
+    return np.einsum("mij,mjk,mlk->mil", output_matrix, P, output_matrix)
 
-    def __init__(self, fusion: KalmanFusion, rows: int) -> None:
+
+def apply_monitor(status: NDArray[np.str_], std: NDArray[np.float64],
+                  scale_tables: NDArray[np.float64], allowed: NDArray[np.bool_],
+                  horizon_s: NDArray[np.float64], edges_s: tuple[float, ...]
+                  ) -> tuple[NDArray[np.str_], NDArray[np.float64], NDArray[np.float64]]:
+    """Bridged rows' std times ``sqrt(scale)`` with ``scale`` the row's monitor table (m, bins)
+    at its horizon (s since the fix), and ``lost`` where the monitor refused to bridge.
+    Returns (status, std, per-row scale)."""
+    bridged = status == BRIDGED
+    index = np.minimum(np.searchsorted(np.asarray(edges_s), horizon_s, side="left"),
+                       len(edges_s) - 1)
+    scale = np.where(bridged, scale_tables[np.arange(len(status)), index], 1.0)
+    scale = np.where(np.isfinite(scale), scale, 1.0)
+    std = std * np.sqrt(scale)[:, None]
+    status = np.where(bridged & ~allowed, LOST, status)
+    return status.astype(str), std, scale
+
+
+class _RowRecorder:
+    """Collects the filter's state and output map after each mocap row (and the monitor's
+    scales, where the row's fix was not used)."""
+
+    def __init__(self, fusion: KalmanFusion, rows: int,
+                 monitor: ConsistencyMonitor | None = None) -> None:
         size = fusion.size
         self.fusion = fusion
+        self.monitor = monitor
+        bins = len(monitor.params.horizon_edges_s) if monitor is not None else 1
+        self.scale_tables = np.ones((rows, bins))
+        self.allowed = np.ones(rows, dtype=bool)
         self.x = np.full((rows, size), np.nan)
         self.P = np.full((rows, size, size), np.nan)
         self.output_matrix = np.zeros((rows, 3, size))
@@ -161,6 +210,9 @@ class _RowRecorder:
         self.outcome[row] = outcome.kind
         self.nis[row] = outcome.nis
         self.dead_reckoned[row] = outcome.t <= fusion.dead_reckoning_until()
+        if self.monitor is not None and not outcome.accepted:
+            self.scale_tables[row] = self.monitor.scale_table()
+            self.allowed[row] = self.monitor.bridging_allowed
         if fusion.initialised:
             self.x[row] = fusion._kf.x
             self.P[row] = fusion._kf.P
@@ -177,26 +229,38 @@ class _RowRecorder:
         return np.isfinite(self.x[:, 0])
 
 
-def run_filter(recording: Recording, params: KalmanParameters | None = None,
+def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
+               monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008 (frozen)
                **overrides: Any) -> FilterRun:
-    """Run :class:`KalmanFusion` over ``recording`` and keep its per-row states and outcomes."""
+    """Run :class:`KalmanFusion` over ``recording`` and keep its per-row states and outcomes.
+
+    ``monitor``: the consistency monitor's settings (:mod:`kfusion.monitor`); None runs the
+    filter alone (the bound is then the profile's)."""
     params = resolve_parameters(recording, params, overrides)
     fusion = make_fusion(recording, params)
-    recorder = _RowRecorder(fusion, len(recording.mocap))
-    process_recording(recording, fusion, recorder.record)
+    watcher = make_monitor(recording, params, monitor)
+    recorder = _RowRecorder(fusion, len(recording.mocap), watcher)
+    process_recording(recording, fusion, recorder.record, watcher)
     status, since = status_from_fixes(recording.mocap.t, recorder.fixed, recorder.initialised,
                                       params.max_bridge_s, recorder.dead_reckoned)
     position, std = point_estimates(recorder.x, recorder.P, recorder.output_matrix,
                                     recorder.output_offset)
+    scale = np.ones(len(status))
+    if watcher is not None:
+        status, std, scale = apply_monitor(status, std, recorder.scale_tables, recorder.allowed,
+                                           since, watcher.params.horizon_edges_s)
     result = TrackResult(t=np.array(recording.mocap.t), position=position, std=std,
                          status=status, time_since_fix=since, method="kalman")
     return FilterRun(result=result, x=recorder.x, P=recorder.P,
                      output_matrix=recorder.output_matrix, output_offset=recorder.output_offset,
                      outcome=recorder.outcome.astype(str), nis=recorder.nis,
-                     counters=fusion.counters, params=params)
+                     counters=fusion.counters, params=params,
+                     monitor=None if watcher is None else watcher.report(),
+                     variance_scale=scale)
 
 
-def filter_recording(recording: Recording, params: KalmanParameters | None = None,
+def filter_recording(recording: Recording, params: KalmanParameters | None = None, *,
+                     monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008
                      **overrides: Any) -> TrackResult:
     """Method ``kalman``: the streaming filter's estimate at every mocap row.
 
@@ -204,10 +268,12 @@ def filter_recording(recording: Recording, params: KalmanParameters | None = Non
         recording: the recording (occluded mocap rows are NaN).
         params: parameters; None builds them from ``recording.info.imu`` (see
             :meth:`KalmanParameters.from_profiles`).
+        monitor: consistency monitor settings (None: off).
         overrides: parameter fields to replace (e.g. ``max_bridge_s=0.5``).
 
     Returns:
-        TrackResult with one row per mocap row: position (m), 1-sigma per axis from P (m),
-        status tracked/bridged/lost and time since the last accepted fix (s).
+        TrackResult with one row per mocap row: position (m), 1-sigma per axis from P scaled by
+        the monitor in gaps (m), status tracked/bridged/lost and time since the last accepted
+        fix (s).
     """
-    return run_filter(recording, params, **overrides).result
+    return run_filter(recording, params, monitor=monitor, **overrides).result

@@ -21,10 +21,21 @@ RTS recursion over rows is::
     P_k^s = P_k + C_k (P_{k+1}^s - P_{k+1|k}) C_k^T
 
 starting from the last filtered row (``x^s = x``). Orientation is the forward filter's.
+
+Consistency (:mod:`kfusion.monitor`): the forward filter carries the online monitor, and the
+smoothed bound is checked offline by *hold-out gaps*, the smoother's shadow gaps. Fixes where
+the mocap is visible are hidden in a copy of the recording, in gaps as long as the recording's
+own (:func:`holdout_scales`); the copy is smoothed, and the errors at the hidden fixes against
+the smoothed covariance give a variance scale per horizon (distance to the nearest fix), matched
+at the bound's confidence exactly as the online shadow gaps are. The real gaps' covariance is
+scaled by it, or the rows are ``lost`` when the scale needed exceeds ``max_std_scale``. It costs
+one more smoother pass over the recording (skipped when it has no gap to bridge).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,17 +43,29 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kfusion.conventions import BRIDGED, LOST, TRACKED
+from kfusion.evaluate import cut_gaps
 from kfusion.kalman.batch import (
     _RowRecorder,
+    apply_monitor,
     make_fusion,
+    make_monitor,
     point_estimates,
+    position_covariances,
     process_recording,
     resolve_parameters,
     status_from_fixes,
 )
-from kfusion.kalman.filter import INITIALISED, UpdateOutcome
+from kfusion.kalman.filter import ACCEPTED, INITIALISED, UpdateOutcome
 from kfusion.kalman.parameters import KalmanParameters
-from kfusion.recording import Recording
+from kfusion.monitor import (
+    HorizonScales,
+    MonitorParameters,
+    MonitorReport,
+    bridging_allowed,
+    nis_matching_scale,
+    required_scale,
+)
+from kfusion.recording import Recording, occlusion_durations, occlusion_runs
 from kfusion.track import TrackResult
 
 
@@ -93,6 +116,9 @@ class SmootherRun:
         outcome: (m,) update outcomes of the forward pass.
         nis: (m,) NIS of each row's fix in the forward pass (NaN where none was compared).
         params: the parameters used.
+        monitor: the forward filter's consistency report (None without a monitor).
+        holdout: the hold-out gaps' scales (None without a monitor or without gaps).
+        output_matrix: (m, 3, n) H at each row (rigid-body point ``H x + c``).
     """
 
     result: TrackResult
@@ -104,6 +130,9 @@ class SmootherRun:
     outcome: NDArray[np.str_]
     nis: NDArray[np.float64]
     params: KalmanParameters
+    monitor: MonitorReport | None = None
+    holdout: HorizonScales | None = None
+    output_matrix: NDArray[np.float64] | None = None
 
 
 def initialised_segments(outcome: NDArray[np.str_], initialised: NDArray[np.bool_]
@@ -129,22 +158,80 @@ def smoother_status(t: NDArray[np.float64], fixed: NDArray[np.bool_], max_bridge
     t = np.asarray(t, dtype=float)
     fixed = np.asarray(fixed, dtype=bool)
     last = np.maximum.accumulate(np.where(fixed, t, -np.inf))
-    following = np.minimum.accumulate(np.where(fixed, t, np.inf)[::-1])[::-1]
-    nearest = np.minimum(t - last, following - t)
+    nearest = nearest_fix_distance(t, fixed)
     status = np.where(nearest <= max_bridge_s, BRIDGED, LOST)
     status = np.where(fixed, TRACKED, status)
     status = np.where(np.isfinite(last), status, LOST)
     return status.astype(str)
 
 
-def run_smoother(recording: Recording, params: KalmanParameters | None = None,
+def nearest_fix_distance(t: NDArray[np.float64], fixed: NDArray[np.bool_]
+                         ) -> NDArray[np.float64]:
+    """Per row, s to the nearest used fix before or after it (0 at fixes, inf without one)."""
+    t = np.asarray(t, dtype=float)
+    fixed = np.asarray(fixed, dtype=bool)
+    last = np.maximum.accumulate(np.where(fixed, t, -np.inf))
+    following = np.minimum.accumulate(np.where(fixed, t, np.inf)[::-1])[::-1]
+    return np.minimum(t - last, following - t)
+
+
+def holdout_scales(recording: Recording, params: KalmanParameters, monitor: MonitorParameters,
+                   seed: int = 0) -> HorizonScales | None:
+    """The smoother's shadow gaps: hide visible fixes in gaps as long as the recording's own
+    (those up to ``max_bridge_s``), smooth the copy, and collect per gap the variance scale
+    each hidden fix needed (:func:`kfusion.monitor.required_scale`) by its distance to the
+    nearest fix, in the bins ``monitor.holdout_edges_s``. The error is taken against the
+    smoothed covariance plus the hidden fix's noise R, with R matched down by the forward pass's
+    NIS when that is below 3 (the smoothed P is of the order of the mocap noise, so a wrong R
+    decides the scale). None when the recording has no gap to
+    bridge or no room for a hold-out gap. Hold-out gaps sit where the mocap is visible for
+    0.5 s before and through them."""
+    mocap = recording.mocap
+    durations = occlusion_durations(mocap.t, mocap.visible)
+    durations = durations[durations <= params.max_bridge_s]
+    if len(durations) == 0:
+        return None
+    frame = float(np.median(np.diff(mocap.t))) if len(mocap.t) > 1 else 0.01
+    low = max(float(durations.min()) - frame, frame)
+    high = max(float(durations.max()) - frame, low)
+    hidden = cut_gaps(recording, rng=np.random.default_rng(seed), gap_range=(low, high),
+                      spacing=0.5)
+    if not hidden.gap_mask.any():
+        return None
+    run = run_smoother(hidden.recording, params, monitor=None)
+    fixed = run.result.status == TRACKED
+    assert run.output_matrix is not None
+    horizon = nearest_fix_distance(mocap.t, fixed)
+    # the hidden fix's noise: R, matched down by the NIS when that shows it pessimistic (as in
+    # the online monitor's shadow innovations)
+    nis = run.nis[run.outcome == ACCEPTED]
+    noise = params.mocap_position_noise ** 2 * min(1.0, nis_matching_scale(nis))
+    covariance = position_covariances(run.P, run.output_matrix) + noise * np.eye(3)
+    # matched at the bound's own confidence: the hold-out gaps sample the same recording the
+    # real gaps are in (the online monitor's shadows predict gaps still to come)
+    scales = HorizonScales(dataclasses.replace(monitor, memory=len(mocap.t),
+                                               horizon_edges_s=monitor.holdout_edges_s,
+                                               matching_quantile=monitor.confidence))
+    for start, stop in occlusion_runs(~hidden.gap_mask):
+        rows = [row for row in range(start, stop) if run.result.status[row] == BRIDGED]
+        scales.add_gap(horizon[rows], [
+            required_scale(run.result.position[row] - hidden.truth_position[row],
+                           covariance[row], monitor.confidence) for row in rows])
+    return scales
+
+
+def run_smoother(recording: Recording, params: KalmanParameters | None = None, *,
+                 monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008 (frozen)
                  **overrides: Any) -> SmootherRun:
-    """Forward :class:`KalmanFusion` pass storing rows, then the RTS backward pass."""
+    """Forward :class:`KalmanFusion` pass storing rows, then the RTS backward pass; with a
+    ``monitor`` (default), the forward filter's online monitor and the hold-out check of the
+    smoothed bound (module docstring)."""
     params = resolve_parameters(recording, params, overrides)
     fusion = make_fusion(recording, params)
+    watcher = make_monitor(recording, params, monitor)
     m = len(recording.mocap)
     size = fusion.size
-    recorder = _RowRecorder(fusion, m)
+    recorder = _RowRecorder(fusion, m, watcher)
     x_predicted = np.full((m, size), np.nan)
     P_predicted = np.full((m, size, size), np.nan)
     transitions = np.full((m, size, size), np.nan)
@@ -160,7 +247,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None,
             transitions[row] = fusion._interval
         fusion._interval = np.eye(size)
 
-    process_recording(recording, fusion, on_row)
+    process_recording(recording, fusion, on_row, watcher)
     x_filtered, P_filtered = recorder.x, recorder.P
     x_smoothed = np.full((m, size), np.nan)
     P_smoothed = np.full((m, size, size), np.nan)
@@ -177,19 +264,36 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None,
     smoothed_status = smoother_status(t, fixed, params.max_bridge_s)
     smoothed_status[~fixed & ~recorder.dead_reckoned] = LOST
 
-    def track(x: NDArray, P: NDArray, status: NDArray, method: str) -> TrackResult:
-        position, std = point_estimates(x, P, recorder.output_matrix, recorder.output_offset)
-        return TrackResult(t=t, position=position, std=std, status=status,
-                           time_since_fix=since, method=method)
-
+    position, std = point_estimates(x_filtered, P_filtered, recorder.output_matrix,
+                                    recorder.output_offset)
+    if watcher is not None:
+        filtered_status, std, _ = apply_monitor(filtered_status, std, recorder.scale_tables,
+                                                recorder.allowed, since,
+                                                watcher.params.horizon_edges_s)
+    filtered = TrackResult(t=t, position=position, std=std, status=filtered_status,
+                           time_since_fix=since, method="kalman")
+    status = smoothed_status
+    position, std = point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
+                                    recorder.output_offset)
+    holdout = None if monitor is None else holdout_scales(recording, params, monitor)
+    if holdout is not None:
+        bins = len(holdout.params.horizon_edges_s)
+        table = np.broadcast_to(holdout.scale_table(), (m, bins))
+        allowed = np.full(m, bridging_allowed(math.sqrt(float(table.max())), holdout.gaps,
+                                              holdout.params))
+        status, std, _ = apply_monitor(status, std, table, allowed, nearest_fix_distance(t, fixed),
+                                       holdout.params.horizon_edges_s)
     return SmootherRun(
-        result=track(x_smoothed, P_smoothed, smoothed_status, "smoother"),
-        filtered=track(x_filtered, P_filtered, filtered_status, "kalman"),
-        x=x_smoothed, P=P_smoothed, x_filtered=x_filtered, P_filtered=P_filtered,
-        outcome=recorder.outcome.astype(str), nis=recorder.nis, params=params)
+        result=TrackResult(t=t, position=position, std=std, status=status,
+                           time_since_fix=since, method="smoother"),
+        filtered=filtered, x=x_smoothed, P=P_smoothed, x_filtered=x_filtered,
+        P_filtered=P_filtered, outcome=recorder.outcome.astype(str), nis=recorder.nis,
+        params=params, monitor=None if watcher is None else watcher.report(), holdout=holdout,
+        output_matrix=recorder.output_matrix)
 
 
-def smooth_recording(recording: Recording, params: KalmanParameters | None = None,
+def smooth_recording(recording: Recording, params: KalmanParameters | None = None, *,
+                     monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008
                      **overrides: Any) -> TrackResult:
     """Method ``smoother``: fixed-interval RTS estimate at every mocap row (offline gap filling).
 
@@ -202,4 +306,4 @@ def smooth_recording(recording: Recording, params: KalmanParameters | None = Non
         TrackResult: smoothed position (m), 1-sigma per axis from the smoothed P (m), status
         (:func:`smoother_status`) and time since the last accepted fix (s, forward in time).
     """
-    return run_smoother(recording, params, **overrides).result
+    return run_smoother(recording, params, monitor=monitor, **overrides).result

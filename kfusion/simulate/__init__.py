@@ -16,15 +16,18 @@ Modules: :mod:`~kfusion.simulate.trajectories` (smooth curves with exact derivat
 """
 
 from kfusion.simulate.files import read_truth, write_simulation
+from kfusion.simulate.imu import TYPICAL_UNMODELLED, UnmodelledErrors
 from kfusion.simulate.occlusions import PLACEMENTS, OcclusionSpec
 from kfusion.simulate.simulation import SCENARIOS, Simulation, Truth, simulate
 
 __all__ = [
     "PLACEMENTS",
     "SCENARIOS",
+    "TYPICAL_UNMODELLED",
     "OcclusionSpec",
     "Simulation",
     "Truth",
+    "UnmodelledErrors",
     "read_truth",
     "simulate",
     "write_simulation",

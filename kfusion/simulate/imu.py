@@ -142,3 +142,125 @@ def simulate_imu(rng: np.random.Generator, profile: ImuProfile, dt: float,
         accelerometer_errors=accelerometer,
         gyroscope_errors=gyroscope,
     )
+
+
+# ---------------------------------------------------------------------------------------------
+# Error sources the filter's model does not have (off by default)
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class UnmodelledErrors:
+    """IMU errors outside :class:`~kfusion.profiles.ImuProfile` and outside the Kalman model, to
+    test whether the bound still holds (issue 9). All zero by default: a simulation without them
+    is unchanged, draw for draw. :data:`TYPICAL_UNMODELLED` holds datasheet-like magnitudes.
+
+    Attributes:
+        axis_misalignment: rad, 1-sigma per axis of the rotation between the accelerometer and
+            gyroscope triads (the accelerometer measures ``R(delta) f``, the gyroscope the
+            IMU-frame rate). Consumer MEMS parts state about +-1 deg between sensor axes (the
+            MPU-9250's +-2 % cross-axis sensitivity is 1.1 deg); +-1 deg as 3 sigma: 0.33 deg.
+        gyroscope_g_sensitivity: (rad/s)/(m/s^2), 1-sigma of each entry of G in
+            ``omega_measured += G f``. MPU-6500/MPU-9250 product specification: linear
+            acceleration sensitivity 0.1 deg/s/g (typical).
+        temperature_rise: K, warm-up of the sensor after power-on, ``T(t) = rise (1 - exp(-t /
+            tau))``. A sensor strapped to a forearm warms by several kelvin; 10 K.
+        temperature_time_constant: s, tau. 120 s.
+        accelerometer_temperature_coefficient: m/s^2/K, 1-sigma per axis of the bias change with
+            temperature (added to the true specific force before the triad's scale matrix).
+            MPU-9250: zero-g level change +-1.5 mg/K (x, y); as 3 sigma: 0.5 mg/K.
+        gyroscope_temperature_coefficient: rad/s/K, the same for the gyroscope. MPU-9250: zero-rate
+            output variation +-30 deg/s over -40..85 deg C, +-0.24 deg/s/K; as 3 sigma: 0.08.
+        timestamp_jitter: s, 1-sigma of the error of each IMU timestamp (host-side stamping over
+            USB or a serial link: 0.5 ms), clipped to 0.4 sample intervals so stamps stay in
+            order. The samples are taken at the true instants; only their stamps move.
+    """
+
+    axis_misalignment: float = 0.0
+    gyroscope_g_sensitivity: float = 0.0
+    temperature_rise: float = 0.0
+    temperature_time_constant: float = 120.0
+    accelerometer_temperature_coefficient: float = 0.0
+    gyroscope_temperature_coefficient: float = 0.0
+    timestamp_jitter: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("axis_misalignment", "gyroscope_g_sensitivity", "temperature_rise",
+                     "temperature_time_constant", "accelerometer_temperature_coefficient",
+                     "gyroscope_temperature_coefficient", "timestamp_jitter"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
+                raise ValueError(f"UnmodelledErrors.{name}: expected a finite number >= 0, "
+                                 f"got {value!r}")
+        if self.temperature_time_constant <= 0:
+            raise ValueError(f"UnmodelledErrors.temperature_time_constant: expected > 0 s, got "
+                             f"{self.temperature_time_constant!r}")
+
+    @property
+    def active(self) -> bool:
+        """True when any error source is switched on."""
+        return any((self.axis_misalignment, self.gyroscope_g_sensitivity,
+                    self.temperature_rise * (self.accelerometer_temperature_coefficient
+                                             + self.gyroscope_temperature_coefficient),
+                    self.timestamp_jitter))
+
+
+_DEGREE = np.pi / 180.0
+TYPICAL_UNMODELLED = UnmodelledErrors(
+    axis_misalignment=(1.0 / 3.0) * _DEGREE,
+    gyroscope_g_sensitivity=0.1 * _DEGREE / 9.80665,
+    temperature_rise=10.0,
+    temperature_time_constant=120.0,
+    accelerometer_temperature_coefficient=0.5e-3 * 9.80665,
+    gyroscope_temperature_coefficient=0.08 * _DEGREE,
+    timestamp_jitter=0.5e-3,
+)
+"""Datasheet-like magnitudes of every unmodelled error source (see :class:`UnmodelledErrors`)."""
+
+
+def small_rotation_matrix(rotation_vector: Array) -> Array:
+    """Rotation matrix of a rotation vector delta (3,) rad (Rodrigues):
+    ``R = I + sin(a) K + (1 - cos(a)) K^2`` with a = |delta| and K the cross matrix of delta/a."""
+    delta = np.asarray(rotation_vector, dtype=float)
+    angle = float(np.linalg.norm(delta))
+    if angle == 0.0:
+        return np.eye(3)
+    k = delta / angle
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+
+
+def temperature_bias(t: Array, coefficient: Array, rise: float, time_constant: float) -> Array:
+    """Bias from warming, (n, 3): ``c (rise (1 - exp(-t / tau)))`` for times t (n,) s and
+    per-axis coefficients c (3,) (unit/K)."""
+    temperature = rise * (1.0 - np.exp(-np.asarray(t, dtype=float) / time_constant))
+    return temperature[:, None] * np.asarray(coefficient, dtype=float)[None, :]
+
+
+def apply_unmodelled(rng: np.random.Generator, errors: UnmodelledErrors, t: Array,
+                     specific_force: Array, angular_rate: Array) -> tuple[Array, Array]:
+    """What the triads sense, before their profile errors, with the unmodelled errors: the
+    accelerometer ``R(delta) f + b_T,a(t)``, the gyroscope ``omega + G f + b_T,g(t)``. Inputs
+    (n, 3) in the IMU frame, times (n,) s; always the same draws (3 + 9 + 3 + 3 normals)."""
+    misalignment = errors.axis_misalignment * rng.standard_normal(3)
+    sensitivity = errors.gyroscope_g_sensitivity * rng.standard_normal((3, 3))
+    accelerometer_coefficient = errors.accelerometer_temperature_coefficient \
+        * rng.standard_normal(3)
+    gyroscope_coefficient = errors.gyroscope_temperature_coefficient * rng.standard_normal(3)
+    force = np.asarray(specific_force, dtype=float)
+    rate = np.asarray(angular_rate, dtype=float)
+    sensed_force = force @ small_rotation_matrix(misalignment).T + temperature_bias(
+        t, accelerometer_coefficient, errors.temperature_rise, errors.temperature_time_constant)
+    sensed_rate = rate + force @ sensitivity.T + temperature_bias(
+        t, gyroscope_coefficient, errors.temperature_rise, errors.temperature_time_constant)
+    return sensed_force, sensed_rate
+
+
+def jittered_stamps(rng: np.random.Generator, t: Array, jitter: float) -> Array:
+    """Timestamps ``t + clip(N(0, jitter^2), -0.4 dt, 0.4 dt)`` for sample instants t (n,) s with
+    dt their smallest spacing: still strictly increasing."""
+    t = np.asarray(t, dtype=float)
+    if len(t) < 2:
+        return t.copy()
+    limit = 0.4 * float(np.min(np.diff(t)))
+    return t + np.clip(jitter * rng.standard_normal(len(t)), -limit, limit)

@@ -48,7 +48,12 @@ from kfusion.conventions import (
 )
 from kfusion.profiles import ImuProfile, MocapProfile, imu_profile, mocap_profile
 from kfusion.recording import ImuSamples, MocapFrames, Recording, RecordingInfo
-from kfusion.simulate.imu import simulate_imu
+from kfusion.simulate.imu import (
+    UnmodelledErrors,
+    apply_unmodelled,
+    jittered_stamps,
+    simulate_imu,
+)
 from kfusion.simulate.mocap import measure_mocap, rotation_vector_quaternion
 from kfusion.simulate.occlusions import OcclusionSpec, place_occlusions
 from kfusion.simulate.scenarios import BUILDERS, DEFAULT_DURATIONS, MIN_DURATION
@@ -194,6 +199,7 @@ def simulate(
     imu_time_offset: float = 0.0,
     imu_clock_drift_ppm: float = 0.0,
     lever_arm: ArrayLike | None = None,
+    unmodelled: UnmodelledErrors | None = None,
 ) -> Simulation:
     """Simulate ``scenario`` (one of :data:`SCENARIOS`) and return recording plus truth.
 
@@ -210,6 +216,9 @@ def simulate(
             the recording's info does not say them.
         lever_arm: (3,) IMU position in the body frame, m (default zero); written to the
             recording's info.
+        unmodelled: IMU error sources the filter's model does not have (misalignment,
+            g-sensitivity, temperature drift, timestamp jitter); None or all zero: none, and
+            the simulation is the same as without the argument.
 
     Raises ValueError on an unknown scenario or profile, bad numbers, or when the occlusion spec
     fits no gap.
@@ -267,7 +276,14 @@ def simulate(
         imu_acceleration = imu_acceleration + np.einsum("nij,nj->ni", R_global_body, lever)
     true_force = specific_force(R_imu_global, imu_acceleration, gravity)
     true_rate = dense.angular_rate @ R_imu_body.T
-    measured = simulate_imu(imu_rng, imu_object, 1.0 / imu_rate, true_force, true_rate)
+    sensed_force, sensed_rate = true_force, true_rate
+    if unmodelled is not None and unmodelled.active:
+        # a stream of its own, so that the other draws stay the same
+        extra_rng = np.random.default_rng([int(seed), 0x756E6D6F])
+        sensed_force, sensed_rate = apply_unmodelled(extra_rng, unmodelled, imu_t, true_force,
+                                                     true_rate)
+        imu_stamps = jittered_stamps(extra_rng, imu_stamps, unmodelled.timestamp_jitter)
+    measured = simulate_imu(imu_rng, imu_object, 1.0 / imu_rate, sensed_force, sensed_rate)
 
     # mocap frames
     mocap_t = sample_times(length, mocap_rate)

@@ -1,0 +1,144 @@
+"""Coverage and sharpness of the bound per recording (issue 9, "real fast motion"). Prints tables.
+
+Data sets:
+
+* BROAD: every real trial, mocap every 3rd sample (~95 Hz), artificial gaps of 0.1-0.3 s cut
+  where the mocap is valid (as ``benchmarks/accuracy.py``), scored against the hidden mocap;
+* simulated recordings with error sources the filter's model does not have
+  (:class:`kfusion.simulate.UnmodelledErrors`: axis misalignment, gyroscope g-sensitivity,
+  bias drifting with temperature, timestamp jitter), each alone and all together, on the paper's
+  scenarios with the ``mpu9255`` profile and 0.1-0.3 s gaps.
+
+Per recording and method (kalman, smoother): ``coverage`` = fraction of gap samples with the
+error inside 3 sigma on every axis (:mod:`kfusion.evaluate`); ``bound_over_error`` = median over
+gap samples of ``r99 / |e|`` with ``r99 = sqrt(F^-1_chi2(3)(0.99)) max_i std_i`` (the 99 % radius
+for an axis-aligned covariance; the Tracker's ``bound()`` uses the largest eigenvalue, which is
+not smaller); ``rms_mm`` the gap RMS; ``lost`` the fraction of gap samples reported lost.
+Targets: coverage >= 0.97 (kalman), >= 0.95 (smoother) per recording, pooled >= 0.99; median
+bound / error <= 4.
+
+Run: ``python benchmarks/coverage.py [--quick] [--seeds N] [--no-monitor]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kfusion.datasets import broad_trials
+from kfusion.evaluate import GapErrors, cut_gaps, gap_errors
+from kfusion.kalman import run_smoother
+from kfusion.monitor import MonitorParameters, chi2_quantile
+from kfusion.readers.broad import read_broad
+from kfusion.recording import Recording
+from kfusion.simulate import TYPICAL_UNMODELLED as TYPICAL
+from kfusion.simulate import OcclusionSpec, UnmodelledErrors, simulate
+
+SCENARIOS = ("arm_lift", "circle", "pick_tool", "random_reach")
+ERROR_SOURCES = {
+    "misalignment": UnmodelledErrors(axis_misalignment=TYPICAL.axis_misalignment),
+    "g-sensitivity": UnmodelledErrors(
+        gyroscope_g_sensitivity=TYPICAL.gyroscope_g_sensitivity),
+    "temperature": UnmodelledErrors(
+        temperature_rise=TYPICAL.temperature_rise,
+        accelerometer_temperature_coefficient=(
+            TYPICAL.accelerometer_temperature_coefficient),
+        gyroscope_temperature_coefficient=(
+            TYPICAL.gyroscope_temperature_coefficient)),
+    "jitter": UnmodelledErrors(timestamp_jitter=TYPICAL.timestamp_jitter),
+    "all": TYPICAL,
+}
+R99 = float(np.sqrt(chi2_quantile(0.99, 3)))
+
+
+@dataclass(frozen=True)
+class Scored:
+    name: str
+    recording: Recording
+    truth: NDArray[np.float64]
+    gaps: NDArray[np.bool_]
+
+
+def broad_sets(trials: int | None) -> list[Scored]:
+    sets = []
+    for path in broad_trials()[:trials]:
+        gapped = cut_gaps(read_broad(path, mocap_step=3), rng=np.random.default_rng(0),
+                          gap_range=(0.1, 0.3))
+        sets.append(Scored(f"BROAD {path.stem[:24]}", gapped.recording, gapped.truth_position,
+                           gapped.gap_mask))
+    return sets
+
+
+def simulated_sets(seeds: int, scenarios: tuple[str, ...]) -> list[Scored]:
+    sets = []
+    for label, errors in ERROR_SOURCES.items():
+        for scenario in scenarios:
+            for seed in range(seeds):
+                simulation = simulate(scenario, seed=seed, imu="mpu9255", unmodelled=errors,
+                                      occlusions=OcclusionSpec(gap_range=(0.1, 0.3)))
+                sets.append(Scored(f"sim {label} {scenario}/{seed}", simulation.recording,
+                                   simulation.truth.position, simulation.truth.occluded))
+    return sets
+
+
+def row(errors: GapErrors) -> dict[str, float]:
+    size = np.linalg.norm(errors.error, axis=1)
+    total = len(size) + errors.lost
+    if len(size) == 0:
+        return {"coverage": np.nan, "bound_over_error": np.nan, "rms_mm": np.nan,
+                "lost": 1.0 if total else np.nan}
+    bound = R99 * errors.std.max(axis=1)
+    return {"coverage": float(np.mean((np.abs(errors.error) <= 3 * errors.std).all(axis=1))),
+            "bound_over_error": float(np.median(bound / np.maximum(size, 1e-12))),
+            "rms_mm": 1000 * float(np.sqrt(np.mean(size ** 2))),
+            "lost": errors.lost / total}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true",
+                        help="2 BROAD trials, 1 seed of 2 scenarios per error source")
+    parser.add_argument("--seeds", type=int, default=2, help="simulation seeds per scenario")
+    parser.add_argument("--no-monitor", action="store_true", help="the profile's bound alone")
+    parser.add_argument("--only", choices=("broad", "simulated"), default=None)
+    args = parser.parse_args()
+    monitor = None if args.no_monitor else MonitorParameters()
+    sets: list[Scored] = []
+    if args.only != "simulated":
+        sets += broad_sets(2 if args.quick else None)
+    if args.only != "broad":
+        sets += simulated_sets(1 if args.quick else args.seeds,
+                               SCENARIOS[:2] if args.quick else SCENARIOS)
+    start = time.perf_counter()
+    pooled: dict[str, list[GapErrors]] = {"kalman": [], "smoother": []}
+    header = ("| recording | kalman coverage | smoother coverage | kalman bound/error | "
+              "smoother bound/error | kalman RMS mm | smoother RMS mm | lost k/s |")
+    print(header)
+    print("|" + "---|" * 8)
+    for scored in sets:
+        run = run_smoother(scored.recording, monitor=monitor)
+        kalman = gap_errors(run.filtered, scored.truth, scored.gaps)
+        smoother = gap_errors(run.result, scored.truth, scored.gaps)
+        pooled["kalman"].append(kalman)
+        pooled["smoother"].append(smoother)
+        k, s = row(kalman), row(smoother)
+        print(f"| {scored.name} | {k['coverage']:.3f} | {s['coverage']:.3f} | "
+              f"{k['bound_over_error']:.2f} | {s['bound_over_error']:.2f} | {k['rms_mm']:.2f} | "
+              f"{s['rms_mm']:.2f} | {k['lost']:.3f}/{s['lost']:.3f} |", flush=True)
+    k = row(GapErrors.concatenate(pooled["kalman"]))
+    s = row(GapErrors.concatenate(pooled["smoother"]))
+    print(f"| **pooled** | {k['coverage']:.3f} | {s['coverage']:.3f} | "
+          f"{k['bound_over_error']:.2f} | {s['bound_over_error']:.2f} | {k['rms_mm']:.2f} | "
+          f"{s['rms_mm']:.2f} | {k['lost']:.3f}/{s['lost']:.3f} |")
+    print(f"\n(monitor {'off' if monitor is None else 'on'}; {len(sets)} recordings; "
+          f"{time.perf_counter() - start:.0f} s)", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

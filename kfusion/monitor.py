@@ -1,0 +1,523 @@
+"""Online consistency monitor: the filter checks its own predictions while the mocap is visible.
+
+Two tests run on the fixes the filter sees anyway (GUIDE §10, "sensor quality"):
+
+* **Windowed NIS.** Over the last N accepted fixes, ``sum NIS_k ~ chi-square(3 N)`` when the
+  filter's innovation covariance S is right. :func:`windowed_nis_test` compares the sum with the
+  two-sided chi-square interval; the covariance-matching factor is ``mean NIS / 3``
+  (:func:`nis_matching_scale`).
+* **Shadow gaps.** Every ``shadow_period_s`` a copy of the filter (restored from a snapshot right
+  after a fused fix) runs on the IMU alone for ``shadow_window_s``, as if the mocap had been
+  occluded. At each fix that follows, the shadow's rigid-body point is compared with the fix,
+  ``e = z - p_shadow``, against its covariance ``S = P_p + R`` (the shadow's position
+  covariance and the mocap noise): the shadow gap's innovation. R is the configured mocap noise,
+  matched down by the windowed NIS when that shows it pessimistic (``R mean NIS / 3`` once the
+  window is full and the mean is below 3).
+
+Each shadow row gives the variance scale it needed (:func:`required_scale`): the smallest s for
+which ``s S`` holds e both ways kfusion's bound is read, inside the confidence-c ellipsoid
+(``d^2 = e^T S^-1 e <= s F^-1_chi2(3)(c)``) and inside 3 sigma on every axis. If the filter's
+growth of P in a gap were right, ``d^2 ~ chi-square(3)`` and s <= 1 at the rate c. The scale is
+applied to the reported ``P_p`` (where a gap's P_p dominates R, the two are the same). Scales are
+kept per horizon bin (time since the shadow's last fix) over the last ``memory`` rows, and the
+scale of a bin is covariance matching at a quantile (:func:`quantile_matching_scale`):
+
+    s(bin) = quantile_q({s_k in bin}),  q = matching_quantile
+
+clipped to ``[minimum_scale, inf)``. A real gap's position covariance is reported as
+``max(s(bin(h)), s_NIS) P`` at horizon h (beyond the last bin, the last bin's scale), where
+``s_NIS = mean NIS / 3`` when the windowed NIS test fails high (else no constraint): the bound
+grows as the shadow gaps showed it must, not only as the profile predicts, and shrinks (down to
+``minimum_scale``) where the profile is pessimistic. Until ``minimum_shadow_gaps`` gaps have been
+seen the scale is at least 1 (the profile).
+
+When the standard-deviation scale needed anywhere exceeds ``max_std_scale`` the monitor refuses
+to bridge: outputs in a gap are ``lost``. The reported bound is then never a number the data
+contradicted.
+
+Suspected cause (:func:`suspected_cause`): from the shadow errors, fitted as a constant
+acceleration error ``e(h) ~ e_0 + v h + a h^2 / 2`` per shadow gap. An error of the order of g
+along gravity, the same in every gap, points at gravity (sign, axis or units); a large
+acceleration error that changes direction from gap to gap points at the IMU disagreeing with the
+mocap motion (clock offset, mount, quaternion order); a moderate scale with a consistent NIS at
+fixes points at an IMU noisier than its profile; an inconsistent NIS alone points at mocap noise.
+A heuristic, named as such in health: it says where to look, ``kfusion check`` diagnoses.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections import deque
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import TYPE_CHECKING, Final
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+if TYPE_CHECKING:
+    from kfusion.kalman.filter import KalmanFusion, KalmanSnapshot, UpdateOutcome
+
+CONSISTENT: Final = "consistent"
+GRAVITY: Final = "gravity direction, sign or units"
+IMU_MOTION: Final = "IMU disagrees with the mocap motion (clock offset, mount or quaternion order)"
+IMU_NOISE: Final = "IMU noisier than its profile"
+MOCAP_NOISE: Final = "mocap noisier than configured"
+CAUSES: Final = (CONSISTENT, GRAVITY, IMU_MOTION, IMU_NOISE, MOCAP_NOISE)
+"""Suspected causes reported in :attr:`MonitorReport.suspected_cause`."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Pure functions
+# ---------------------------------------------------------------------------------------------
+
+
+@lru_cache(maxsize=128)
+def chi2_quantile(probability: float, dof: int) -> float:
+    """F^-1 of chi-square with ``dof`` degrees of freedom (scipy, cached)."""
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(probability, dof))
+
+
+def normalised_error_squared(error: ArrayLike, covariance: ArrayLike) -> float:
+    """``d^2 = e^T P^-1 e`` for an error e (3,) m and covariance P (3, 3) m^2; inf when P is
+    singular or not finite."""
+    e = np.asarray(error, dtype=float)
+    P = np.asarray(covariance, dtype=float)
+    if not (np.isfinite(P).all() and np.isfinite(e).all()):
+        return math.inf
+    try:
+        return float(e @ np.linalg.solve(P, e))
+    except np.linalg.LinAlgError:
+        return math.inf
+
+
+def required_scale(error: ArrayLike, covariance: ArrayLike, confidence: float = 0.99,
+                   sigmas: float = 3.0) -> float:
+    """Smallest variance scale s for which ``s P`` holds the error e (3,) m both ways kfusion's
+    bound is read: inside the ellipsoid of confidence c, ``d^2 <= s F^-1_chi2(3)(c)``, and
+    inside ``sigmas`` standard deviations on every axis, ``e_i^2 <= s sigmas^2 P_ii``:
+
+        s = max(d^2 / F^-1_chi2(3)(c), max_i e_i^2 / (sigmas^2 P_ii))
+
+    inf when P is singular or not finite."""
+    e = np.asarray(error, dtype=float)
+    P = np.asarray(covariance, dtype=float)
+    d2 = normalised_error_squared(e, P)
+    variances = np.diag(P)
+    if not (math.isfinite(d2) and (variances > 0).all()):
+        return math.inf
+    per_axis = float(np.max(e * e / variances)) / (sigmas * sigmas)
+    return max(d2 / chi2_quantile(confidence, 3), per_axis)
+
+
+@dataclass(frozen=True)
+class NisTest:
+    """Result of :func:`windowed_nis_test`.
+
+    Attributes:
+        mean: mean NIS over the window.
+        lower, upper: the interval the mean lies in with probability ``probability`` when the
+            filter is consistent: ``F^-1_chi2(dof N)((1 -+ probability) / 2) / N``.
+        consistent: lower <= mean <= upper (True for an empty window).
+        samples: N.
+    """
+
+    mean: float
+    lower: float
+    upper: float
+    consistent: bool
+    samples: int
+
+
+def windowed_nis_test(nis: ArrayLike, probability: float = 0.999, dof: int = 3) -> NisTest:
+    """Two-sided chi-square test of the mean of N NIS values of ``dof`` each:
+    ``N mean ~ chi-square(dof N)`` under a consistent filter."""
+    values = np.asarray(nis, dtype=float)
+    values = values[np.isfinite(values)]
+    n = len(values)
+    if n == 0:
+        return NisTest(math.nan, 0.0, math.inf, True, 0)
+    mean = float(values.mean())
+    tail = 0.5 * (1.0 - probability)
+    lower = chi2_quantile(tail, dof * n) / n
+    upper = chi2_quantile(1.0 - tail, dof * n) / n
+    return NisTest(mean, lower, upper, lower <= mean <= upper, n)
+
+
+def nis_matching_scale(nis: ArrayLike, dof: int = 3) -> float:
+    """Covariance-matching factor ``mean NIS / dof`` (1 for an empty window): the factor by which
+    the innovation covariance is too small (> 1) or too large (< 1)."""
+    values = np.asarray(nis, dtype=float)
+    values = values[np.isfinite(values)]
+    return float(values.mean() / dof) if len(values) else 1.0
+
+
+def quantile_matching_scale(required: ArrayLike, confidence: float = 0.99) -> float:
+    """Covariance matching at a quantile: the variance scale ``quantile_c(s_k)`` of the scales
+    each error needed (:func:`required_scale`), so that the scaled bound holds the observed
+    errors at the rate c. NaN for no samples; inf when more than ``1 - c`` of them are inf."""
+    values = np.asarray(required, dtype=float)
+    values = values[~np.isnan(values)]
+    if len(values) == 0:
+        return math.nan
+    if np.isinf(values).any():
+        if np.mean(np.isinf(values)) > 1.0 - confidence:
+            return math.inf
+        values = values[np.isfinite(values)]
+    return float(np.quantile(values, confidence))
+
+
+def horizon_bin(horizon_s: float, edges_s: tuple[float, ...]) -> int:
+    """Index of the bin holding ``horizon_s``: bin i is ``(edges[i-1], edges[i]]`` (bin 0 from 0);
+    horizons beyond the last edge fall in the last bin."""
+    for index, edge in enumerate(edges_s):
+        if horizon_s <= edge:
+            return index
+    return len(edges_s) - 1
+
+
+def fit_acceleration_error(horizon_s: ArrayLike, error: ArrayLike) -> NDArray[np.float64]:
+    """Least-squares ``a`` (3,) m/s^2 of ``e(h) = e_0 + v h + a h^2 / 2`` over one shadow gap's
+    rows (horizon (k,) s, error (k, 3) m); NaN with fewer than 4 rows."""
+    h = np.asarray(horizon_s, dtype=float)
+    e = np.asarray(error, dtype=float)
+    if len(h) < 4:
+        return np.full(3, np.nan)
+    design = np.column_stack([np.ones_like(h), h, 0.5 * h * h])
+    solution, *_ = np.linalg.lstsq(design, e, rcond=None)
+    return np.asarray(solution[2], dtype=float)
+
+
+def suspected_cause(std_scale: float, nis_consistent: bool, nis_scale: float,
+                    accelerations: ArrayLike, gravity: ArrayLike,
+                    params: MonitorParameters) -> str:
+    """Name the most likely broken assumption (a heuristic; module docstring).
+
+    Args:
+        std_scale: largest standard-deviation scale the shadow gaps needed.
+        nis_consistent, nis_scale: the windowed NIS test and its matching factor.
+        accelerations: (k, 3) acceleration errors fitted to the last shadow gaps, m/s^2.
+        gravity: (3,) m/s^2, global frame.
+        params: thresholds.
+    """
+    a = np.asarray(accelerations, dtype=float).reshape(-1, 3)
+    a = a[np.isfinite(a).all(axis=1)]
+    if std_scale > params.cause_std_scale and len(a):
+        mean = a.mean(axis=0)
+        g = np.asarray(gravity, dtype=float)
+        along = abs(float(mean @ g)) / max(float(np.linalg.norm(g)), 1e-12)
+        typical = float(np.sqrt(np.mean(np.sum(a * a, axis=1))))
+        if along > params.gravity_error_fraction * float(np.linalg.norm(g)):
+            return GRAVITY
+        if typical > params.motion_error_acceleration:
+            return IMU_MOTION
+        return IMU_NOISE
+    if std_scale > params.cause_std_scale:
+        return IMU_NOISE
+    if not nis_consistent and nis_scale > 1.0:
+        return MOCAP_NOISE
+    return CONSISTENT
+
+
+def bridging_allowed(std_scale: float, shadow_gaps: int, params: MonitorParameters) -> bool:
+    """The refusal rule: bridge only while ``std_scale <= max_std_scale``, and, before
+    ``minimum_shadow_gaps`` shadow gaps, only while ``std_scale <= cause_std_scale``."""
+    limit = (params.max_std_scale if shadow_gaps >= params.minimum_shadow_gaps
+             else params.cause_std_scale)
+    return std_scale <= limit
+
+
+# ---------------------------------------------------------------------------------------------
+# Parameters, report, state
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class MonitorParameters:
+    """Settings of the consistency monitor.
+
+    Attributes:
+        nis_window: accepted fixes in the windowed NIS test.
+        nis_probability: two-sided probability of the NIS interval.
+        shadow_window_s: length of a shadow gap, s.
+        shadow_period_s: a shadow gap starts at the first fused fix this long after the previous
+            one started, s (>= shadow_window_s; the cost is about window/period of a filter).
+        horizon_edges_s: upper edges of the horizon bins, s, increasing.
+        holdout_edges_s: the same for the smoother's hold-out gaps (distance to the nearest
+            fix; the smoother's error varies faster with it than the filter's).
+        memory: shadow-gap rows remembered per bin (about 5-10 per gap and bin at 100 Hz).
+        confidence: the bound the scale is matched at (chi-square quantile of the radius).
+        matching_quantile: quantile of the rows' required scales that the scale matches: a
+            little above ``confidence``, since the next gap is not one of the shadow gaps.
+        minimum_shadow_gaps: gaps needed before the scale may fall below 1.
+        minimum_scale: smallest variance scale (the profile may be pessimistic, but only so far).
+        max_std_scale: beyond this standard-deviation scale the monitor refuses to bridge.
+        cause_std_scale: std scale above which a cause other than the mocap is named.
+        gravity_error_fraction: mean acceleration error along gravity, as a fraction of |g|,
+            above which gravity is suspected.
+        motion_error_acceleration: RMS acceleration error (m/s^2) above which the IMU is said to
+            disagree with the mocap motion.
+    """
+
+    nis_window: int = 100
+    nis_probability: float = 0.999
+    shadow_window_s: float = 0.3
+    shadow_period_s: float = 0.6
+    horizon_edges_s: tuple[float, ...] = (0.02, 0.04, 0.06, 0.08, 0.1, 0.15, 0.2, 0.3)
+    holdout_edges_s: tuple[float, ...] = (0.02, 0.04, 0.06, 0.08, 0.1, 0.15, 0.2, 0.3, 0.5)
+    memory: int = 400
+    confidence: float = 0.99
+    matching_quantile: float = 0.995
+    minimum_shadow_gaps: int = 10
+    minimum_scale: float = 0.04
+    max_std_scale: float = 5.0
+    cause_std_scale: float = 2.0
+    gravity_error_fraction: float = 0.5
+    motion_error_acceleration: float = 2.0
+
+    def __post_init__(self) -> None:
+        positive = ("shadow_window_s", "shadow_period_s", "minimum_scale", "max_std_scale")
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"MonitorParameters.{name}: expected a finite number > 0, "
+                                 f"got {value!r}")
+        for name in ("nis_window", "memory", "minimum_shadow_gaps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"MonitorParameters.{name}: expected an integer >= 1, "
+                                 f"got {value!r}")
+        for name in ("nis_probability", "confidence", "matching_quantile"):
+            value = getattr(self, name)
+            if not 0.0 < value < 1.0 and not (name == "matching_quantile" and value == 1.0):
+                raise ValueError(f"MonitorParameters.{name}: expected a probability in (0, 1), "
+                                 f"got {value!r}")
+        for name in ("horizon_edges_s", "holdout_edges_s"):
+            edges = tuple(float(edge) for edge in getattr(self, name))
+            if not edges or any(b <= a for a, b in zip(edges, edges[1:], strict=False)) \
+                    or edges[0] <= 0:
+                raise ValueError(f"MonitorParameters.{name}: expected increasing positive "
+                                 f"times, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, edges)
+        if self.shadow_period_s < self.shadow_window_s:
+            raise ValueError(f"MonitorParameters.shadow_period_s: expected >= shadow_window_s "
+                             f"({self.shadow_window_s}), got {self.shadow_period_s}")
+
+
+@dataclass(frozen=True)
+class MonitorReport:
+    """What the monitor found (health / diagnostics).
+
+    Attributes:
+        nis: the windowed NIS test over the last accepted fixes.
+        shadow_gaps: shadow gaps completed.
+        variance_scale: (bins,) covariance scale per horizon bin (NaN: no evidence yet).
+        std_scale: largest standard-deviation scale in use (>= sqrt(minimum_scale)).
+        bridging_allowed: False when the monitor refuses to bridge (gaps are ``lost``).
+        suspected_cause: one of :data:`CAUSES`.
+    """
+
+    nis: NisTest
+    shadow_gaps: int
+    variance_scale: tuple[float, ...]
+    std_scale: float
+    bridging_allowed: bool
+    suspected_cause: str
+
+    def as_dict(self) -> dict[str, object]:
+        """Plain dict for health output."""
+        return {"nis_mean": self.nis.mean, "nis_consistent": self.nis.consistent,
+                "shadow_gaps": self.shadow_gaps, "variance_scale": list(self.variance_scale),
+                "std_scale": self.std_scale, "bridging_allowed": self.bridging_allowed,
+                "suspected_cause": self.suspected_cause}
+
+
+class HorizonScales:
+    """Per-bin memory of the scales the rows of the last gaps needed, and the matched scales.
+
+    Shared by the online monitor (shadow gaps of the filter) and the smoother's offline
+    hold-out (:func:`kfusion.kalman.smoother.run_smoother`)."""
+
+    def __init__(self, params: MonitorParameters) -> None:
+        self.params = params
+        bins = len(params.horizon_edges_s)
+        self._rows: list[deque[float]] = [deque(maxlen=params.memory) for _ in range(bins)]
+        self.gaps = 0
+        self._table: NDArray[np.float64] | None = None  # cache of scale_table()
+
+    def add_gap(self, horizons_s: ArrayLike, required: ArrayLike) -> None:
+        """One gap's rows: horizon (k,) s and the scale each row needed (k,)."""
+        horizons = np.asarray(horizons_s, dtype=float)
+        values = np.asarray(required, dtype=float)
+        if len(horizons) == 0:
+            return
+        for horizon, value in zip(horizons.tolist(), values.tolist(), strict=True):
+            self._rows[horizon_bin(horizon, self.params.horizon_edges_s)].append(value)
+        self.gaps += 1
+        self._table = None
+
+    def variance_scales(self) -> tuple[float, ...]:
+        """Matched variance scale per bin (NaN where the bin has no evidence), before limits."""
+        return tuple(quantile_matching_scale(list(rows), self.params.matching_quantile)
+                     for rows in self._rows)
+
+    def scale_table(self) -> NDArray[np.float64]:
+        """(bins,) variance scale applied per bin: the matched scale, at least ``minimum_scale``
+        (at least 1 before ``minimum_shadow_gaps`` gaps); a bin without evidence takes the
+        largest scale of the bins before it (1 if none)."""
+        if self._table is not None:
+            return self._table
+        params = self.params
+        floor = params.minimum_scale if self.gaps >= params.minimum_shadow_gaps else 1.0
+        table = []
+        previous = floor
+        for scale in self.variance_scales():
+            value = previous if math.isnan(scale) else max(scale, floor)
+            table.append(value)
+            previous = max(previous, value)
+        self._table = np.asarray(table, dtype=float)
+        self._table.flags.writeable = False
+        return self._table
+
+    def scale_at(self, horizons_s: ArrayLike) -> NDArray[np.float64]:
+        """Variance scale at each horizon (s)."""
+        table = self.scale_table()
+        edges = np.asarray(self.params.horizon_edges_s)
+        index = np.minimum(np.searchsorted(edges, np.asarray(horizons_s, dtype=float),
+                                           side="left"), len(edges) - 1)
+        return table[index]
+
+
+class ConsistencyMonitor:
+    """Windowed NIS and shadow gaps beside a running :class:`~kfusion.kalman.KalmanFusion`.
+
+    Feed it the same IMU samples as the filter (:meth:`imu`), and after each mocap frame the
+    filter's outcome (:meth:`mocap`). ``shadow`` is a second filter built with the same
+    configuration; the monitor restores it from the main filter's snapshots and never touches
+    the main filter.
+    """
+
+    def __init__(self, shadow: KalmanFusion, params: MonitorParameters | None = None,
+                 gravity: ArrayLike = (0.0, 0.0, -9.81)) -> None:
+        self.params = params if params is not None else MonitorParameters()
+        self._shadow = shadow
+        self._gravity = np.asarray(gravity, dtype=float)
+        self._scales = HorizonScales(self.params)
+        self._nis: deque[float] = deque(maxlen=self.params.nis_window)
+        self._start: float | None = None  # time of the running shadow gap's last fix
+        self._next_start = -math.inf
+        self._rows_h: list[float] = []
+        self._rows_scale: list[float] = []
+        self._rows_error: list[NDArray[np.float64]] = []
+        self._accelerations: deque[NDArray[np.float64]] = deque(maxlen=self.params.nis_window)
+
+    # -------------------------------------------------------------- events
+
+    def imu(self, t: float, accelerometer: ArrayLike, gyroscope: ArrayLike) -> None:
+        """An IMU sample the main filter was given (s, m/s^2, rad/s)."""
+        if self._start is not None:
+            self._shadow.predict(t, accelerometer, gyroscope)
+
+    def mocap(self, t: float, position: NDArray[np.float64] | None, outcome: UpdateOutcome,
+              fusion: KalmanFusion) -> None:
+        """A mocap frame at t (s) after the main filter (``fusion``) processed it with
+        ``outcome``; ``position`` (3,) m or None when occluded."""
+        from kfusion.kalman.filter import ACCEPTED, USED_OUTCOMES
+
+        if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
+            self._nis.append(outcome.nis)
+        if self._start is not None:
+            self._shadow.update(t, None, None)
+            horizon = t - self._start
+            if outcome.kind == ACCEPTED and position is not None:
+                estimate = self._shadow.estimate()
+                error = np.asarray(position, dtype=float) - estimate.position
+                noise = self._mocap_noise_variance()
+                self._rows_h.append(horizon)
+                self._rows_scale.append(required_scale(
+                    error, estimate.position_covariance + noise * np.eye(3),
+                    self.params.confidence))
+                self._rows_error.append(error)
+            if horizon >= self.params.shadow_window_s or outcome.kind not in USED_OUTCOMES:
+                self._close()
+        if self._start is None and outcome.kind == ACCEPTED and t >= self._next_start:
+            self._shadow.restore(fusion.snapshot())
+            self._start = t
+            self._next_start = t + self.params.shadow_period_s
+
+    def _mocap_noise_variance(self) -> float:
+        """R of the shadow innovation, m^2: the configured mocap noise, times the NIS matching
+        factor when that is below 1 (at fixes R dominates S, so a small NIS says R is
+        pessimistic; a pessimistic R would hide the shadow's error)."""
+        configured = self._shadow.params.mocap_position_noise ** 2
+        if len(self._nis) < self.params.nis_window:
+            return configured
+        return configured * min(1.0, nis_matching_scale(list(self._nis)))
+
+    def _close(self) -> None:
+        """End the running shadow gap and keep its evidence."""
+        if self._rows_h:
+            self._scales.add_gap(self._rows_h, self._rows_scale)
+            self._accelerations.append(fit_acceleration_error(self._rows_h,
+                                                              np.array(self._rows_error)))
+        self._start = None
+        self._rows_h, self._rows_scale, self._rows_error = [], [], []
+
+    # -------------------------------------------------------------- results
+
+    def variance_scale(self, horizon_s: float) -> float:
+        """Factor for the position covariance at ``horizon_s`` s since the last fix: the shadow
+        gaps' scale for that horizon and the NIS matching factor, whichever is larger."""
+        table = self.scale_table()
+        return float(table[horizon_bin(horizon_s, self.params.horizon_edges_s)])
+
+    def scale_table(self) -> NDArray[np.float64]:
+        """(bins,) variance scale per horizon bin (:meth:`variance_scale` of each bin)."""
+        return np.maximum(self._scales.scale_table(), self._nis_scale())
+
+    def _nis_scale(self) -> float:
+        """The NIS matching factor when the windowed test says the innovations are too large,
+        else 0 (no constraint: a small NIS says R is pessimistic, not that P may shrink)."""
+        test = windowed_nis_test(list(self._nis), self.params.nis_probability)
+        return nis_matching_scale(list(self._nis)) if test.mean > test.upper else 0.0
+
+    @property
+    def bridging_allowed(self) -> bool:
+        """False when the shadow gaps need a larger std scale than ``max_std_scale``, or, while
+        fewer than ``minimum_shadow_gaps`` gaps are in, one above ``cause_std_scale`` (thin
+        evidence of a broken model: its scale is not yet known well enough to bridge on)."""
+        return bridging_allowed(self._std_scale(), self._scales.gaps, self.params)
+
+    def _std_scale(self) -> float:
+        return math.sqrt(max(float(self._scales.scale_table().max()), self._nis_scale()))
+
+    def snapshot(self) -> object:
+        """A copy of the monitor's state; :meth:`restore` continues from it exactly."""
+        state = {key: value for key, value in vars(self).items()
+                 if key not in ("_shadow", "params", "_gravity")}
+        shadow = self._shadow.snapshot() if self._start is not None else None
+        return copy.deepcopy(state), shadow
+
+    def restore(self, snapshot: object) -> None:
+        """Continue from a :meth:`snapshot` of a monitor with the same configuration."""
+        state: dict[str, object] = snapshot[0]  # type: ignore[index]
+        shadow: KalmanSnapshot | None = snapshot[1]  # type: ignore[index]
+        vars(self).update(copy.deepcopy(state))
+        if shadow is not None:
+            self._shadow.restore(shadow)
+
+    def report(self) -> MonitorReport:
+        """What the monitor has found so far."""
+        test = windowed_nis_test(list(self._nis), self.params.nis_probability)
+        std_scale = self._std_scale()
+        cause = suspected_cause(std_scale, test.consistent, nis_matching_scale(list(self._nis)),
+                                np.array(list(self._accelerations)).reshape(-1, 3),
+                                self._gravity, self.params)
+        return MonitorReport(nis=test, shadow_gaps=self._scales.gaps,
+                             variance_scale=self._scales.variance_scales(), std_scale=std_scale,
+                             bridging_allowed=bridging_allowed(std_scale, self._scales.gaps,
+                                                               self.params),
+                             suspected_cause=cause)
