@@ -171,13 +171,13 @@ def diagnose(recording: Recording) -> Diagnosis:
         misfit = relative_rate_misfit(pairs.mocap.rate, gyroscope)
         if misfit > MAX_RATE_MISFIT:
             swapped_pairs = rate_pairs(_reordered(recording), offset)
-            swapped = relative_rate_misfit(swapped_pairs.mocap.rate,
-                                           swapped_pairs.gyroscope(offset, 0.0))
-            if swapped < 0.5 * misfit:
+            swapped_misfit = relative_rate_misfit(swapped_pairs.mocap.rate,
+                                                  swapped_pairs.gyroscope(offset, 0.0))
+            if swapped_misfit < 0.5 * misfit:
                 return Diagnosis([f"quaternion columns look like x, y, z, w: no mount matches "
                                   f"the gyroscope to the mocap rates (misfit {misfit:.0%}), but "
-                                  f"with qw read from the last column one does ({swapped:.0%}):"
-                                  " write mocap.csv's quaternion as qw, qx, qy, qz"],
+                                  "with qw read from the last column one does "
+                                  f"({swapped_misfit:.0%}): write mocap.csv's quaternion as qw, qx, qy, qz"],
                                  correlation=correlation)
         angle = float(np.degrees((best.inv() * rotation_from_wxyz(
             recording.info.imu_to_body)).magnitude()))
