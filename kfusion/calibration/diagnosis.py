@@ -177,7 +177,8 @@ def diagnose(recording: Recording) -> Diagnosis:
                 return Diagnosis([f"quaternion columns look like x, y, z, w: no mount matches "
                                   f"the gyroscope to the mocap rates (misfit {misfit:.0%}), but "
                                   "with qw read from the last column one does "
-                                  f"({swapped_misfit:.0%}): write mocap.csv's quaternion as qw, qx, qy, qz"],
+                                  f"({swapped_misfit:.0%}): write mocap.csv's quaternion as "
+                                  "qw, qx, qy, qz"],
                                  correlation=correlation)
         angle = float(np.degrees((best.inv() * rotation_from_wxyz(
             recording.info.imu_to_body)).magnitude()))
