@@ -216,7 +216,10 @@ def test_atomic_write_keeps_the_old_file_on_any_failure(tmp_path):
     assert path.read_text() == "new"
 
 
-def test_calibrate_out_is_written_atomically(folder, tmp_path, capsys, monkeypatch):
+def test_calibrate_out_is_written_atomically(tmp_path, capsys, monkeypatch):
+    # a recording rich enough in rotation for calibrate to determine everything
+    folder = tmp_path / "rich"
+    write_simulation(simulate("random_reach", seed=0, duration=20.0), folder)
     out = tmp_path / "calibrated.yaml"
     out.write_text("previous\n")
     monkeypatch.setattr("pathlib.Path.write_text", lambda self, text, **kw: (_ for _ in ()).throw(

@@ -278,7 +278,8 @@ def test_filterpy_filter_equals_the_numpy_reference(variant):
             recording, info=dataclasses.replace(recording.info, lever_arm=None))
         # and a range that some samples reach
         params = dataclasses.replace(params, imu_latency_s=0.0012, accelerometer_range=10.5)
-    run = run_filter(recording, params)
+    # the model alone: the consistency monitor is a layer of its own (tests/test_monitor.py)
+    run = run_filter(recording, params, monitor=None)
     reference = reference_filter(recording, params)
     assert run.x.shape[1] == (12 if variant != "nine_states" else 9)
     assert (run.counters["accelerometer_saturated"] > 0) == (variant != "nine_states")
@@ -320,7 +321,8 @@ def stream(fusion: KalmanFusion, recording: Recording, start: int = 0, stop: int
 def test_streaming_equals_the_batch_run():
     recording = sim_recording(duration=8.0)
     params = KalmanParameters.from_profiles("mpu9255")
-    batch = run_filter(recording, params).result
+    # KalmanFusion streams the model alone; the monitor's layer is compared in test_monitor.py
+    batch = run_filter(recording, params, monitor=None).result
     steps = stream(KalmanFusion(recording.info.imu_to_body, recording.info.gravity, params,
                                 lever_arm=recording.info.lever_arm), recording)
     np.testing.assert_array_equal(np.array([s.position for s in steps]), batch.position)
@@ -478,7 +480,8 @@ def test_gating_rejects_a_marker_jump_and_reacquires_after_a_long_gap():
 
 def test_status_is_bridged_then_lost_after_max_bridge():
     recording, _, start, end = jumped(sim_recording())
-    result = filter_recording(recording, max_bridge_s=0.5)
+    # the model's own bound (the monitor's scale steps between horizon bins: test_monitor.py)
+    result = filter_recording(recording, max_bridge_s=0.5, monitor=None)
     gap = slice(start, end)
     since = result.t[gap] - result.t[start - 1]
     np.testing.assert_allclose(result.time_since_fix[gap], since, atol=1e-12)

@@ -222,7 +222,7 @@ def test_the_tracker_reports_what_the_monitor_found_and_matches_the_batch_filter
             tracker.push_imu(imu.t[index], imu.accelerometer[index], imu.gyroscope[index])
         else:
             tracker.push_mocap(mocap.t[index], mocap.position[index], mocap.quaternion[index])
-            status.append(tracker.estimate().status)
+            status.append(tracker.estimate(mocap.t[index]).status)
     report = tracker.consistency
     assert report is not None and report.suspected_cause == GRAVITY
     np.testing.assert_array_equal(np.array(status), run_filter(recording).result.status)

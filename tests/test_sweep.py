@@ -318,7 +318,7 @@ def test_heatmap_and_line_figures_average_over_seeds():
     plt.close(figure)
     figure = heatmap_figure(table, rows="gap", columns="method", value="rms_mm", facet="imu")
     panels = [ax for ax in figure.axes if ax.images]
-    assert [ax.get_title() for ax in panels] == ["imu = m", "imu = u"]
+    assert [ax.get_title() for ax in panels] == ["imu: m", "imu: u"]
     np.testing.assert_allclose(panels[1].images[0].get_array(), [[3.0, 2.0], [7.0, 8.0]])
     plt.close(figure)
     figure = sweep_lines_figure(table, x="gap", value="rms_mm")

@@ -43,7 +43,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kfusion.conventions import BRIDGED, LOST, TRACKED
-from kfusion.evaluate import cut_gaps
 from kfusion.kalman.batch import (
     _RowRecorder,
     apply_monitor,
@@ -194,6 +193,8 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     frame = float(np.median(np.diff(mocap.t))) if len(mocap.t) > 1 else 0.01
     low = max(float(durations.min()) - frame, frame)
     high = max(float(durations.max()) - frame, low)
+    from kfusion.evaluate import cut_gaps  # pandas: kept out of kfusion.tracker's imports
+
     hidden = cut_gaps(recording, rng=np.random.default_rng(seed), gap_range=(low, high),
                       spacing=0.5)
     if not hidden.gap_mask.any():

@@ -37,7 +37,8 @@ def read_truth(source: str | Path) -> Truth:
     Raises :class:`~kfusion.recording.RecordingError` if the file is missing or malformed.
     """
     path = Path(source)
-    path = path / TRUTH_FILE if path.is_dir() else path
+    # a folder (or a path without a file suffix, taken as a folder) holds truth.csv
+    path = path / TRUTH_FILE if path.is_dir() or not path.suffix else path
     name = path.name
     if not path.is_file():
         raise RecordingError(name, f"file not found in {path.parent}")
