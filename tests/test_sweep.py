@@ -6,6 +6,7 @@ from __future__ import annotations
 import multiprocessing
 import signal
 import tempfile
+import time
 from collections.abc import Generator, Sequence
 from pathlib import Path
 from typing import Any
@@ -195,8 +196,12 @@ def test_stopping_local_processes_mid_sweep_ends_the_workers(tmp_path):
     workers = multiprocessing.active_children()
     assert len(workers) == 2
     stream.close()  # what an interrupt in run_sweep does
-    for worker in workers:
-        worker.join(timeout=30)
+    # the pool's manager thread reaps the workers too; a join racing it can read exitcode None
+    # for a process that has already ended, so wait until the exit codes are known
+    deadline = time.monotonic() + 30
+    while any(worker.exitcode is None for worker in workers) and time.monotonic() < deadline:
+        for worker in workers:
+            worker.join(timeout=0.1)
     # ended by SIGTERM in the middle of the remaining runs, not after finishing them
     assert [worker.exitcode for worker in workers] == [-signal.SIGTERM] * 2
 
