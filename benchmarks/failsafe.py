@@ -4,8 +4,9 @@ For every fault (built by :mod:`kfusion.simulate.faults` on simulated recordings
 on the real BROAD trials when ``../shared`` holds them) each path is run the way a user would:
 
 * ``tracker``: the streaming :class:`kfusion.tracker.Tracker` (Kalman), samples pushed in
-  arrival order, ``estimate(t)`` asked after each mocap frame at its arrival time (when the
-  tracker refuses a ``t`` behind its newest sample, ``estimate()`` is asked instead, and counted);
+  arrival order, ``estimate(now)`` asked after each mocap frame at its arrival time (when the
+  tracker refuses a now behind its newest sample, the caller has no position: scored as lost,
+  and counted);
 * ``kalman`` and ``smoother``: ``kfusion check`` then ``kfusion track`` on the recording folder
   written to disk; a refusal by ``kfusion track`` (exit 2) counts as the tool refusing, never as
   confidently wrong.
@@ -145,11 +146,13 @@ def _push(tracker: Tracker, streams: Streams, stream: int, index: int) -> None:
 
 
 def _estimate(tracker: Tracker, t: float, notes: Counter):  # type: ignore[no-untyped-def]
+    """``estimate(now)``; None (no position: scored as lost) when the tracker refuses a now
+    behind its newest sample (samples stamped after now, as from an IMU clock ahead)."""
     try:
         return tracker.estimate(t)
     except ValueError:
-        notes["estimate(t) refused a t behind the newest sample; estimate() used"] += 1
-        return tracker.estimate()
+        notes["estimate(now) refused: samples stamped after now"] += 1
+        return None
 
 
 def run_tracker(streams: Streams, truth: np.ndarray) -> Outcome:
@@ -168,8 +171,11 @@ def run_tracker(streams: Streams, truth: np.ndarray) -> Outcome:
             continue
         if stream == 1:
             estimate = _estimate(tracker, arrival, outcome.notes)
-            outcome.add(estimate.status, estimate.position, estimate.bound(CONFIDENCE),
-                        truth[index])
+            if estimate is None:
+                outcome.add(LOST, np.full(3, np.nan), math.inf, truth[index])
+            else:
+                outcome.add(estimate.status, estimate.position, estimate.bound(CONFIDENCE),
+                            truth[index])
     outcome.notes += health_notes(tracker)
     return outcome
 

@@ -413,6 +413,8 @@ class ConsistencyMonitor:
         self._rows_scale: list[float] = []
         self._rows_error: list[NDArray[np.float64]] = []
         self._accelerations: deque[NDArray[np.float64]] = deque(maxlen=self.params.nis_window)
+        self._last_fix: tuple[float, NDArray[np.float64]] | None = None  # (t s, position (3,) m)
+        self._gated_fix: NDArray[np.float64] | None = None  # newest fix gated since the last fused
 
     # -------------------------------------------------------------- events
 
@@ -425,10 +427,15 @@ class ConsistencyMonitor:
               fusion: KalmanFusion) -> None:
         """A mocap frame at t (s) after the main filter (``fusion``) processed it with
         ``outcome``; ``position`` (3,) m or None when occluded."""
-        from kfusion.kalman.filter import ACCEPTED, USED_OUTCOMES
+        from kfusion.kalman.filter import ACCEPTED, GATED, USED_OUTCOMES
 
         if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
             self._nis.append(outcome.nis)
+        if outcome.kind in USED_OUTCOMES and position is not None:
+            self._last_fix = (t, np.array(position, dtype=float))
+            self._gated_fix = None
+        elif outcome.kind == GATED and position is not None:
+            self._gated_fix = np.array(position, dtype=float)
         if self._start is not None:
             self._shadow.update(t, None, None)
             horizon = t - self._start
@@ -483,6 +490,33 @@ class ConsistencyMonitor:
         else 0 (no constraint: a small NIS says R is pessimistic, not that P may shrink)."""
         test = windowed_nis_test(list(self._nis), self.params.nis_probability)
         return nis_matching_scale(list(self._nis)) if test.mean > test.upper else 0.0
+
+    def fix_only(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """The position from the fixes alone, for when the IMU model is not trusted
+        (:attr:`bridging_allowed` False): at the time of the last fused fix, that fix (3,) m
+        with the mocap noise R = sigma_mocap^2 I (3, 3) m^2; None at any other time (without a
+        trusted motion model the position between fixes is unknown)."""
+        if self._last_fix is None or t != self._last_fix[0]:
+            return None
+        noise = self._shadow.params.mocap_position_noise ** 2
+        return self._last_fix[1].copy(), noise * np.eye(3)
+
+    def cover_gated_fix(self, position: NDArray[np.float64], covariance: NDArray[np.float64]
+                        ) -> NDArray[np.float64]:
+        """The position covariance (3, 3) m^2 widened to cover the rival hypothesis of a gated
+        fix: the newest fix rejected since the last fused one (a marker swap, or a broken
+        model, which the gate alone cannot tell apart) may be right, so the bound around the
+        estimate ``position`` (3,) m must hold it too:
+
+            P' = P + d d^T + R,   d = z_gated - position
+
+        (the largest eigenvalue of P' is at least |d|^2, so the bound reaches past the gated
+        fix). Unchanged when no fix was gated since the last fused one."""
+        if self._gated_fix is None:
+            return covariance
+        difference = self._gated_fix - np.asarray(position, dtype=float)
+        noise = self._shadow.params.mocap_position_noise ** 2
+        return covariance + np.outer(difference, difference) + noise * np.eye(3)
 
     @property
     def bridging_allowed(self) -> bool:

@@ -574,11 +574,19 @@ class _KalmanEstimator:
         step = self._fusion.estimate(t)  # new arrays
         covariance = step.position_covariance
         std = step.std
-        if step.time_since_fix > 0.0:  # in a gap: the monitor's scale, or no bridging
-            if not self.monitor.bridging_allowed:
+        if not self.monitor.bridging_allowed:
+            # the monitor found the IMU model broken (NIS or shadow gaps far out of bounds):
+            # its predictions, and the fused posterior built on them, are not trusted; at a
+            # fix the position is that fix alone (covariance R), elsewhere it is unknown
+            fix = self.monitor.fix_only(t)
+            if fix is None:
                 return None
+            position, covariance = fix
+            return _Reading(position, step.velocity, covariance, np.sqrt(np.diag(covariance)))
+        if step.time_since_fix > 0.0:  # in a gap: the monitor's scale
             scale = self.monitor.variance_scale(step.time_since_fix)
-            covariance, std = covariance * scale, std * math.sqrt(scale)
+            covariance = self.monitor.cover_gated_fix(step.position, covariance * scale)
+            std = np.sqrt(np.diag(covariance))
         return _Reading(step.position, step.velocity, 0.5 * (covariance + covariance.T), std)
 
     def finite(self) -> bool:
