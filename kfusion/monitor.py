@@ -57,7 +57,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 if TYPE_CHECKING:
-    from kfusion.kalman.filter import KalmanFusion, KalmanSnapshot, UpdateOutcome
+    from kfusion.kalman.filter import FilterStep, KalmanFusion, KalmanSnapshot, UpdateOutcome
 
 CONSISTENT: Final = "consistent"
 GRAVITY: Final = "gravity direction, sign or units"
@@ -415,6 +415,8 @@ class ConsistencyMonitor:
         self._accelerations: deque[NDArray[np.float64]] = deque(maxlen=self.params.nis_window)
         self._last_fix: tuple[float, NDArray[np.float64]] | None = None  # (t s, position (3,) m)
         self._gated_fix: NDArray[np.float64] | None = None  # newest fix gated since the last fused
+        # (t s, offset (3,) m, covariance (3, 3) m^2) of the prediction a fix replaced after gating
+        self._rival: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None
 
     # -------------------------------------------------------------- events
 
@@ -423,16 +425,28 @@ class ConsistencyMonitor:
         if self._start is not None:
             self._shadow.predict(t, accelerometer, gyroscope)
 
+    @property
+    def has_gated_fix(self) -> bool:
+        """True when a fix was gated since the last fused one (then the caller passes the
+        filter's prior to :meth:`mocap`, see :meth:`cover_rivals`)."""
+        return self._gated_fix is not None
+
     def mocap(self, t: float, position: NDArray[np.float64] | None, outcome: UpdateOutcome,
-              fusion: KalmanFusion) -> None:
+              fusion: KalmanFusion, prior: FilterStep | None = None) -> None:
         """A mocap frame at t (s) after the main filter (``fusion``) processed it with
-        ``outcome``; ``position`` (3,) m or None when occluded."""
+        ``outcome``; ``position`` (3,) m or None when occluded; ``prior``: the filter's
+        estimate at t before this frame (needed only while :attr:`has_gated_fix`)."""
         from kfusion.kalman.filter import ACCEPTED, GATED, USED_OUTCOMES
 
         if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
             self._nis.append(outcome.nis)
         if outcome.kind in USED_OUTCOMES and position is not None:
             self._last_fix = (t, np.array(position, dtype=float))
+            if self._gated_fix is not None and prior is not None \
+                    and np.isfinite(prior.position).all():
+                # fused after gated fixes: the prediction it replaced stays a rival hypothesis
+                self._rival = (t, prior.position - np.asarray(position, dtype=float),
+                               np.array(prior.position_covariance))
             self._gated_fix = None
         elif outcome.kind == GATED and position is not None:
             self._gated_fix = np.array(position, dtype=float)
@@ -501,22 +515,29 @@ class ConsistencyMonitor:
         noise = self._shadow.params.mocap_position_noise ** 2
         return self._last_fix[1].copy(), noise * np.eye(3)
 
-    def cover_gated_fix(self, position: NDArray[np.float64], covariance: NDArray[np.float64]
-                        ) -> NDArray[np.float64]:
-        """The position covariance (3, 3) m^2 widened to cover the rival hypothesis of a gated
-        fix: the newest fix rejected since the last fused one (a marker swap, or a broken
-        model, which the gate alone cannot tell apart) may be right, so the bound around the
-        estimate ``position`` (3,) m must hold it too:
+    def cover_rivals(self, t: float, position: NDArray[np.float64],
+                     covariance: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The position covariance (3, 3) m^2 at t (s) widened to cover the rival hypotheses
+        the gate could not settle (a marker swap and a broken model look alike to it):
 
-            P' = P + d d^T + R,   d = z_gated - position
+        * a fix gated since the last fused one may be right: with d = z_gated - position,
+          P' = P + d d^T + R;
+        * a fix fused after gated ones (a re-acquisition, or a swapped marker passing the gate
+          once the prediction has grown loose) may be wrong: the prediction it replaced, d =
+          x_prior - z and covariance P_prior, stays a rival for ``max_bridge_s`` (as long as
+          that prediction would have been bridged): P' = P + d d^T + P_prior.
 
-        (the largest eigenvalue of P' is at least |d|^2, so the bound reaches past the gated
-        fix). Unchanged when no fix was gated since the last fused one."""
-        if self._gated_fix is None:
-            return covariance
-        difference = self._gated_fix - np.asarray(position, dtype=float)
-        noise = self._shadow.params.mocap_position_noise ** 2
-        return covariance + np.outer(difference, difference) + noise * np.eye(3)
+        The largest eigenvalue of P' is at least |d|^2, so the bound reaches past the rival.
+        Unchanged when there is none."""
+        params = self._shadow.params
+        if self._gated_fix is not None:
+            difference = self._gated_fix - np.asarray(position, dtype=float)
+            covariance = (covariance + np.outer(difference, difference)
+                          + params.mocap_position_noise ** 2 * np.eye(3))
+        if self._rival is not None and t - self._rival[0] <= params.max_bridge_s:
+            _, offset, rival_covariance = self._rival
+            covariance = covariance + np.outer(offset, offset) + rival_covariance
+        return covariance
 
     @property
     def bridging_allowed(self) -> bool:

@@ -564,8 +564,9 @@ class _KalmanEstimator:
         self.monitor.imu(t, accelerometer, gyroscope)
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str:
+        prior = self._fusion.estimate(t) if self.monitor.has_gated_fix else None
         outcome = self._fusion.update(t, position, quaternion)
-        self.monitor.mocap(t, position, outcome, self._fusion)
+        self.monitor.mocap(t, position, outcome, self._fusion, prior)
         return _KALMAN_OUTCOMES[outcome.kind]
 
     def read(self, t: float) -> _Reading | None:
@@ -582,11 +583,13 @@ class _KalmanEstimator:
             if fix is None:
                 return None
             position, covariance = fix
+            covariance = self.monitor.cover_rivals(t, position, covariance)
             return _Reading(position, step.velocity, covariance, np.sqrt(np.diag(covariance)))
         if step.time_since_fix > 0.0:  # in a gap: the monitor's scale
             scale = self.monitor.variance_scale(step.time_since_fix)
-            covariance = self.monitor.cover_gated_fix(step.position, covariance * scale)
-            std = np.sqrt(np.diag(covariance))
+            covariance = covariance * scale
+        covariance = self.monitor.cover_rivals(t, step.position, covariance)
+        std = np.sqrt(np.diag(covariance))
         return _Reading(step.position, step.velocity, 0.5 * (covariance + covariance.T), std)
 
     def finite(self) -> bool:
