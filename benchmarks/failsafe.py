@@ -269,11 +269,14 @@ def run_batch(streams: Streams, truth: np.ndarray, method: str, folder: Path) ->
 
 
 def _cli(argv: list[str]) -> tuple[int, str]:
+    """Exit status and the last line printed (the recording folder, ``argv[1]``, as DIR)."""
+    folder = argv[1]
     err = io.StringIO()
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         status = cli(argv)
     message = err.getvalue().strip().splitlines()
     text = message[-1] if message else ""
+    text = text.replace(folder, "DIR")
     return status, text.split("error: ", 1)[-1][:90]
 
 
