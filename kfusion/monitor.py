@@ -32,8 +32,16 @@ grows as the shadow gaps showed it must, not only as the profile predicts, and s
 seen the scale is at least 1 (the profile).
 
 When the standard-deviation scale needed anywhere exceeds ``max_std_scale`` the monitor refuses
-to bridge: outputs in a gap are ``lost``. The reported bound is then never a number the data
-contradicted.
+to bridge: outputs in a gap are ``lost``. The IMU model is then not trusted at the fixes either
+(the fused posterior is built on its prediction): the Tracker shows, at a fix, that fix alone
+with covariance R (:meth:`ConsistencyMonitor.fix_only`), and nothing between fixes. The reported
+bound is then never a number the data contradicted.
+
+Rival hypotheses (:meth:`ConsistencyMonitor.cover_rivals`): the gate cannot tell a marker swap
+from a broken model. A fix gated since the last fused one may be right, so the bound is widened
+to hold it (``P + d d^T + R``); a fix fused after gated ones (a swapped marker passing the gate
+once the prediction has grown loose) may be wrong, so the prediction it replaced stays a rival
+for ``max_bridge_s`` (``P + d d^T + P_prior``).
 
 Suspected cause (:func:`suspected_cause`): from the shadow errors, fitted as a constant
 acceleration error ``e(h) ~ e_0 + v h + a h^2 / 2`` per shadow gap. An error of the order of g
