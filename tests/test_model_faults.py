@@ -28,9 +28,11 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from kfusion.conventions import LOST, TRACKED
+from kfusion.kalman import run_filter, run_smoother
+from kfusion.kalman.smoother import contested_fixes
 from kfusion.simulate import OcclusionSpec, faults, simulate
 from kfusion.simulate.faults import Streams
-from kfusion.tracker import Tracker
+from kfusion.tracker import Tracker, position_bound
 
 DURATION = 8.0  # s
 CONFIDENCE = 0.99
@@ -146,3 +148,28 @@ def test_a_marker_swap_that_passes_the_gate_stays_covered(simulations, fraction)
                                  duration_s=1.0)
     status, error, bound, _ = shown_rows(streams, np.asarray(simulation.truth.position))
     assert_never_confidently_wrong(status, error, bound, f"swap at {fraction}")
+
+
+def test_contested_fixes_are_the_fixes_fused_after_gated_ones():
+    outcome = np.array(["initialised", "accepted", "gated", "occluded", "gated", "reacquired",
+                        "accepted", "occluded", "accepted", "gated", "accepted"])
+    expected = [False, False, False, False, False, True, False, False, False, False, True]
+    assert contested_fixes(outcome).tolist() == expected
+
+
+@pytest.mark.parametrize("fraction", [0.35, 0.5])
+@pytest.mark.parametrize("method", ["kalman", "smoother"])
+def test_batch_paths_cover_a_marker_swap(simulations, method, fraction):
+    """``kfusion track``'s filter and smoother on the same swaps: every row not lost is within
+    its bound (the batch bound is the axis-aligned one kfusion's CSV carries)."""
+    simulation = simulations[3]
+    streams = faults.marker_swap(Streams.of(simulation.recording), fraction=fraction,
+                                 duration_s=1.0)
+    runner = run_filter if method == "kalman" else run_smoother
+    result = runner(streams.recording).result
+    error = np.linalg.norm(result.position - np.asarray(simulation.truth.position), axis=1)
+    bound = np.array([position_bound(np.diag(std ** 2), CONFIDENCE) for std in result.std])
+    status = np.asarray(result.status)
+    assert_never_confidently_wrong(status, np.where(status == LOST, np.nan, error),
+                                   np.where(status == LOST, np.inf, bound),
+                                   f"{method}, swap at {fraction}")

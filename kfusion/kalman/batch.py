@@ -87,12 +87,13 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
                 monitor.imu(stamp, accelerometer[i], gyroscope[i])
             i += 1
         position = mocap.position[row].copy() if visible[row] else None
+        prior = fusion.estimate(t) if monitor is not None and monitor.has_gated_fix else None
         if position is not None:
             outcome = fusion._update_valid(t, position, mocap.quaternion[row].copy())
         else:
             outcome = fusion.update(t, None, None)
         if monitor is not None:
-            monitor.mocap(t, position, outcome, fusion)
+            monitor.mocap(t, position, outcome, fusion, prior)
         on_row(row, outcome)
 
 
@@ -204,6 +205,8 @@ class _RowRecorder:
         self.outcome = np.empty(rows, dtype=object)
         self.nis = np.full(rows, np.nan)
         self.dead_reckoned = np.zeros(rows, dtype=bool)
+        # (m, 3) m^2: variance the monitor's rival hypotheses add per axis (cover_rivals)
+        self.rival_variance = np.zeros((rows, 3))
 
     def record(self, row: int, outcome: UpdateOutcome) -> None:
         fusion = self.fusion
@@ -219,6 +222,10 @@ class _RowRecorder:
             H, offset = fusion._output_map(fusion._orientation.state.quaternion)
             self.output_matrix[row] = H
             self.output_offset[row] = offset
+            if self.monitor is not None:
+                widened = self.monitor.cover_rivals(outcome.t, H @ fusion._kf.x + offset,
+                                                    np.zeros((3, 3)))
+                self.rival_variance[row] = np.diag(widened)
 
     @property
     def fixed(self) -> NDArray[np.bool_]:
@@ -249,6 +256,7 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
     if watcher is not None:
         status, std, scale = apply_monitor(status, std, recorder.scale_tables, recorder.allowed,
                                            since, watcher.params.horizon_edges_s)
+        std = np.sqrt(std ** 2 + recorder.rival_variance)
     result = TrackResult(t=np.array(recording.mocap.t), position=position, std=std,
                          status=status, time_since_fix=since, method="kalman")
     return FilterRun(result=result, x=recorder.x, P=recorder.P,

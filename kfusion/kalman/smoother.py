@@ -54,7 +54,7 @@ from kfusion.kalman.batch import (
     resolve_parameters,
     status_from_fixes,
 )
-from kfusion.kalman.filter import ACCEPTED, INITIALISED, UpdateOutcome
+from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, USED_OUTCOMES, UpdateOutcome
 from kfusion.kalman.parameters import KalmanParameters
 from kfusion.monitor import (
     HorizonScales,
@@ -134,13 +134,32 @@ class SmootherRun:
     output_matrix: NDArray[np.float64] | None = None
 
 
+def contested_fixes(outcome: NDArray[np.str_]) -> NDArray[np.bool_]:
+    """(m,) True at a fix fused after gated ones (since the previous fused fix): the gate
+    rejected frames in between, so the data contradict either this fix or the prediction it
+    replaced (a marker swap passing the gate once the prediction grew loose, or the marker's
+    return). The backward pass does not smooth across it."""
+    outcome = np.asarray(outcome).astype(str)
+    used = np.isin(outcome, USED_OUTCOMES)
+    contested = np.zeros(len(outcome), dtype=bool)
+    gated_since_fix = False
+    for row, kind in enumerate(outcome.tolist()):
+        if used[row]:
+            contested[row] = gated_since_fix
+            gated_since_fix = False
+        elif kind == GATED:
+            gated_since_fix = True
+    return contested
+
+
 def initialised_segments(outcome: NDArray[np.str_], initialised: NDArray[np.bool_]
                          ) -> list[tuple[int, int]]:
-    """Row ranges ``[first, stop)`` over which the filter ran without a re-initialisation: each
-    starts at an ``initialised`` fix and stops before the next one or where the state was
-    forgotten (an overflow reset). The backward pass runs over each separately."""
+    """Row ranges ``[first, stop)`` over which the filter ran without a re-initialisation and
+    without a contested fix (:func:`contested_fixes`): each starts at an ``initialised`` or a
+    contested fix and stops before the next one or where the state was forgotten (an overflow
+    reset). The backward pass runs over each separately."""
     segments = []
-    starts = np.flatnonzero(outcome == INITIALISED)
+    starts = np.flatnonzero((outcome == INITIALISED) | contested_fixes(outcome))
     for index, first in enumerate(starts):
         limit = int(starts[index + 1]) if index + 1 < len(starts) else len(outcome)
         lost = np.flatnonzero(~initialised[first:limit])
@@ -271,6 +290,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         filtered_status, std, _ = apply_monitor(filtered_status, std, recorder.scale_tables,
                                                 recorder.allowed, since,
                                                 watcher.params.horizon_edges_s)
+        std = np.sqrt(std ** 2 + recorder.rival_variance)
     filtered = TrackResult(t=t, position=position, std=std, status=filtered_status,
                            time_since_fix=since, method="kalman")
     status = smoothed_status
@@ -284,6 +304,10 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                                               holdout.params))
         status, std, _ = apply_monitor(status, std, table, allowed, nearest_fix_distance(t, fixed),
                                        holdout.params.horizon_edges_s)
+    if watcher is not None:
+        # the forward pass's rival hypotheses (a gated fix, or the prediction a fix replaced
+        # after gating) are positions the data left open: the smoothed bound holds them too
+        std = np.sqrt(std ** 2 + recorder.rival_variance)
     return SmootherRun(
         result=TrackResult(t=t, position=position, std=std, status=status,
                            time_since_fix=since, method="smoother"),
