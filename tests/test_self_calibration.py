@@ -247,3 +247,20 @@ def test_calibrate_check_and_track_commands(tmp_path, capsys):
     assert yaml.safe_load((folder / "recording.yaml").read_text())["imu_noise"]
     assert main(["check", str(folder)]) == 0
     assert main(["track", str(folder), "--out", str(out)]) == 0
+
+
+def test_a_still_limb_names_the_clock_and_does_not_accuse_the_gravity(tmp_path, capsys):
+    # the first 6 s of circle are a rest (the noise estimate finds them all still): nothing
+    # times the IMU against the mocap, so the mount cannot be fitted and a correct gravity must
+    # not be reported as contradicting the data (it used to be, through a noise-fitted mount)
+    simulation = simulate("circle", seed=0, duration=6.0, imu_time_offset=1.234)
+    folder = write_recording(simulation.recording, tmp_path / "still")
+    (folder / "recording.yaml").write_text("gravity: [0, -9.81, 0]\n")
+    out = folder / "calibrated.yaml"
+    assert main(["calibrate", str(folder), "--out", str(out)]) == 2
+    captured = capsys.readouterr()
+    assert "imu_time_offset undetermined" in captured.err and "too little rotation" in \
+        captured.err, captured.err
+    assert "gravity" not in captured.err and not out.exists()
+    assert "imu_to_body: undetermined: not fitted: the clock is undetermined" in captured.out
+    assert "as given, not checked" in captured.out

@@ -104,7 +104,8 @@ class SelfCalibration:
                 if np.isfinite(force.accelerometer_bias_std).all() else
                 "not separable from gravity (too little change of orientation): not fitted"))
         else:
-            line("gravity", "")
+            line("gravity", f"{np.round(self.info.gravity, 4).tolist()} m/s^2 as given, not "
+                 "checked (no specific-force fit)")
             line("lever_arm", "")
         noise = self.noise
         source = (f"{noise.still_seconds:.1f} s still" if noise.source == "still"
@@ -115,13 +116,17 @@ class SelfCalibration:
         return lines
 
 
-def _gravity(given: Array, force: SpecificForceFit | None, undetermined: dict[str, str]
-             ) -> Array:
+def _gravity(given: Array, force: SpecificForceFit | None, undetermined: dict[str, str],
+             prerequisite: str | None = None) -> Array:
     """The gravity to write: the given one checked against the fit, else the fit's direction
-    at :data:`NOMINAL_GRAVITY`. ValueError when a given gravity contradicts the data."""
+    at :data:`NOMINAL_GRAVITY`. ValueError when a given gravity contradicts the data. Without a
+    fit (``prerequisite``: the undetermined quantity it needs) a given gravity is kept
+    unchecked and an absent one is undetermined."""
     if force is None:
         if not np.isfinite(given).all():
-            undetermined["gravity"] = "no visible mocap run long enough to fit it"
+            undetermined["gravity"] = (f"not fitted: {prerequisite} is undetermined"
+                                       if prerequisite else
+                                       "no visible mocap run long enough to fit it")
         return given
     fitted = force.gravity
     low, high = GRAVITY_MAGNITUDE_RANGE
@@ -152,12 +157,19 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     clock_and_mount = calibrate_clock_and_mount(recording, correlation.offset)
     fit = clock_and_mount.fit
     undetermined = dict(clock_and_mount.undetermined)
-    try:
-        force: SpecificForceFit | None = fit_specific_force(recording, fit.offset, fit.drift_ppm,
-                                                            fit.imu_to_body)
-    except ValueError:
-        force = None
-    gravity = _gravity(np.asarray(recording.info.gravity, dtype=float), force, undetermined)
+    # the specific force is rotated through the mount at the fitted clock: with either
+    # undetermined, the fitted gravity would be an artefact of a wrong mount (a still limb's
+    # Kabsch "mount" is noise), so neither check nor estimate it
+    prerequisite = next((key for key in ("imu_time_offset", "imu_to_body")
+                         if key in undetermined), None)
+    force: SpecificForceFit | None = None
+    if prerequisite is None:
+        try:
+            force = fit_specific_force(recording, fit.offset, fit.drift_ppm, fit.imu_to_body)
+        except ValueError:
+            force = None
+    gravity = _gravity(np.asarray(recording.info.gravity, dtype=float), force, undetermined,
+                       prerequisite)
     lever_arm = None
     if force is not None and np.max(force.lever_arm_std) <= MAX_LEVER_ARM_STD:
         lever_arm = force.lever_arm
@@ -166,6 +178,8 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
             f"fitted {np.round(force.lever_arm * 1e3, 1).tolist()} +- "
             f"{np.round(force.lever_arm_std * 1e3, 1).tolist()} mm: too little angular "
             f"acceleration to pin it within {MAX_LEVER_ARM_STD * 1e3:g} mm (not written)")
+    elif prerequisite is not None:
+        undetermined["lever_arm"] = f"not fitted: {prerequisite} is undetermined"
     else:
         undetermined["lever_arm"] = "no visible mocap run long enough to fit it"
     noise = estimate_noise(recording.imu)
