@@ -23,7 +23,7 @@ from kfusion.calibration.clock import (
 )
 from kfusion.calibration.diagnosis import diagnose
 from kfusion.calibration.noise import third_difference_std
-from kfusion.calibration.specific_force import lever_arm_matrix
+from kfusion.calibration.specific_force import SCALE_ERROR_BASIS, lever_arm_matrix
 from kfusion.cli import main
 from kfusion.conventions import imu_time_to_mocap, rotation_from_wxyz
 from kfusion.methods import track_recording
@@ -264,3 +264,11 @@ def test_a_still_limb_names_the_clock_and_does_not_accuse_the_gravity(tmp_path, 
     assert "gravity" not in captured.err and not out.exists()
     assert "imu_to_body: undetermined: not fitted: the clock is undetermined" in captured.out
     assert "as given, not checked" in captured.out
+
+
+def test_the_scale_error_basis_spans_every_matrix():
+    # 9 independent matrices: any first-order scale and misalignment error E is a combination
+    basis = SCALE_ERROR_BASIS.reshape(9, 9)
+    assert np.linalg.matrix_rank(basis) == 9
+    assert np.allclose(SCALE_ERROR_BASIS[-1], np.eye(3))
+    assert all(np.trace(matrix) == 0 for matrix in SCALE_ERROR_BASIS[:-1])

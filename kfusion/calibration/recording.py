@@ -95,7 +95,7 @@ class SelfCalibration:
                  f"{np.round(force.gravity, 3).tolist()} +- "
                  f"{np.round(force.gravity_std, 3).tolist()}; specific-force residual "
                  f"{force.residual_rms:.3f} m/s^2 RMS, {force.residual_before_rms:.3f} "
-                 "without lever arm and bias)")
+                 "without lever arm, bias and scale errors)")
             line("lever_arm", f"{np.round(force.lever_arm * 1e3, 1).tolist()} mm +- "
                  f"{np.round(force.lever_arm_std * 1e3, 1).tolist()} mm")
             lines.append("accelerometer bias: " + (
@@ -103,6 +103,10 @@ class SelfCalibration:
                 f"{np.round(force.accelerometer_bias_std, 3).tolist()} m/s^2"
                 if np.isfinite(force.accelerometer_bias_std).all() else
                 "not separable from gravity (too little change of orientation): not fitted"))
+            if np.isfinite(force.accelerometer_bias_std).all():
+                lines.append("accelerometer scale and misalignment: largest term "
+                             f"{100 * np.max(np.abs(force.accelerometer_scale_error)):.2f} % "
+                             "(fitted with the bias; not written)")
         else:
             line("gravity", f"{np.round(self.info.gravity, 4).tolist()} m/s^2 as given, not "
                  "checked (no specific-force fit)")
