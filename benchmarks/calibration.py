@@ -24,13 +24,13 @@ import time
 import numpy as np
 import pandas as pd
 
-from kfusion.calibration import calibrate_recording
+from kfusion.calibration import calibrate_recording, restamped, without_calibration
+from kfusion.calibration.evaluation import gap_rms_and_lost
 from kfusion.conventions import rotation_from_wxyz
 from kfusion.datasets import broad_trials
-from kfusion.evaluate import cut_gaps, gap_errors, metrics_from_errors
-from kfusion.methods import track_recording
+from kfusion.evaluate import cut_gaps
 from kfusion.readers.broad import read_broad
-from kfusion.recording import ImuSamples, Recording
+from kfusion.recording import Recording
 from kfusion.simulate import simulate
 
 SCENARIOS = ("random_reach", "pick_tool", "circle", "arm_lift")
@@ -41,25 +41,9 @@ def angle_deg(first: np.ndarray, second: np.ndarray) -> float:
                              * rotation_from_wxyz(second)).magnitude()))
 
 
-def unknown(recording: Recording) -> Recording:
-    """Only imu.csv and mocap.csv: mount, gravity, lever arm and clock unknown."""
-    return dataclasses.replace(recording, info=dataclasses.replace(
-        recording.info, imu_to_body=np.full(4, np.nan), gravity=np.full(3, np.nan),
-        lever_arm=None, imu_time_offset=0.0, imu_clock_drift_ppm=0.0, imu_noise=None))
-
-
 def gap_rms_mm(recording: Recording, truth: np.ndarray, mask: np.ndarray) -> float:
-    """Kalman gap RMS, mm, over the gap samples the tracker bridged (lost ones are not scored:
-    see :func:`gap_lost_percent`)."""
-    return gap_metrics(recording, truth, mask)[0]
-
-
-def gap_metrics(recording: Recording, truth: np.ndarray, mask: np.ndarray
-                ) -> tuple[float, float]:
-    """(gap RMS over bridged samples, mm; percentage of gap samples the tracker called lost)."""
-    result = track_recording(recording, "kalman")
-    metrics = metrics_from_errors(gap_errors(result, truth, mask))
-    return float(metrics["rms_mm"]), 100.0 * float(metrics["lost_fraction"])
+    """Kalman gap RMS, mm, over the gap samples the tracker bridged."""
+    return gap_rms_and_lost(recording, truth, mask)[0]
 
 
 TARGETS = {"offset_error_ms": 1.0, "drift_error_ppm": 10.0, "mount_error_deg": 1.0,
@@ -91,7 +75,7 @@ def simulated_rows(seeds: int, duration: float) -> list[dict]:
                                imu_clock_drift_ppm=drift, lever_arm=lever)
             synced = simulate(scenario, seed=seed, duration=duration, lever_arm=lever)
             start = time.perf_counter()
-            calibration = calibrate_recording(unknown(shifted.recording))
+            calibration = calibrate_recording(without_calibration(shifted.recording))
             seconds = time.perf_counter() - start
             info = calibration.info
             truth, mask = shifted.truth.position, shifted.truth.occluded
@@ -111,25 +95,17 @@ def simulated_rows(seeds: int, duration: float) -> list[dict]:
             row["gap_rms_synced_mm"] = gap_rms_mm(synced.recording, synced.truth.position,
                                                   synced.truth.occluded)
             # before: the true mount and lever arm, the clock uncalibrated (lost gaps unscored)
-            row["gap_rms_before_mm"], row["lost_before_%"] = gap_metrics(
+            row["gap_rms_before_mm"], row["lost_before_%"] = gap_rms_and_lost(
                 shifted.recording, truth, mask)
             if calibration.complete:
                 calibrated = dataclasses.replace(shifted.recording, info=info)
-                row["gap_rms_after_mm"], row["lost_after_%"] = gap_metrics(calibrated, truth,
+                row["gap_rms_after_mm"], row["lost_after_%"] = gap_rms_and_lost(calibrated, truth,
                                                                            mask)
             else:
                 row["gap_rms_after_mm"] = row["lost_after_%"] = np.nan
             mark_targets(row)
             rows.append(row)
     return rows
-
-
-def shift(recording: Recording, offset: float, drift_ppm: float) -> Recording:
-    """IMU stamps re-expressed on a clock with ``t_mocap = (1 + d) t' + c``."""
-    imu = recording.imu
-    stamps = (imu.t - offset) / (1.0 + drift_ppm * 1e-6)
-    return dataclasses.replace(recording, imu=ImuSamples(stamps, imu.accelerometer,
-                                                         imu.gyroscope))
 
 
 def broad_rows(trials: int | None) -> list[dict]:
@@ -139,14 +115,14 @@ def broad_rows(trials: int | None) -> list[dict]:
         original = read_broad(path, mocap_step=3)
         own = calibrate_recording(original).info
         offset, drift = float(rng.uniform(-2, 2)), float(rng.uniform(-100, 100))
-        shifted = shift(original, offset, drift)
+        shifted = restamped(original, offset, drift)
         start = time.perf_counter()
         calibration = calibrate_recording(shifted)
         seconds = time.perf_counter() - start
         info = calibration.info
         expected_offset = offset * (1 + own.imu_clock_drift_ppm * 1e-6) + own.imu_time_offset
         gapped = cut_gaps(original, rng=np.random.default_rng(0))
-        gapped_shifted = shift(gapped.recording, offset, drift)
+        gapped_shifted = restamped(gapped.recording, offset, drift)
         truth, mask = gapped.truth_position, gapped.gap_mask
         minutes = float(original.imu.t[-1] - original.imu.t[0]) / 60.0
         row = {

@@ -8,6 +8,7 @@ same estimators (:mod:`kfusion.calibration.diagnosis`).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,7 +23,7 @@ from kfusion.calibration.specific_force import (
     fit_specific_force,
 )
 from kfusion.conventions import GRAVITY_MAGNITUDE_RANGE
-from kfusion.recording import ImuNoise, Recording, RecordingInfo
+from kfusion.recording import ImuNoise, ImuSamples, Recording, RecordingInfo
 
 Array = NDArray[np.float64]
 
@@ -198,3 +199,22 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     return SelfCalibration(correlation=correlation, clock_and_mount=clock_and_mount,
                            specific_force=force, noise=noise, info=info,
                            undetermined=undetermined)
+
+
+def without_calibration(recording: Recording) -> Recording:
+    """The recording as ``imu.csv`` and ``mocap.csv`` alone describe it: mount and gravity
+    unknown (NaN), no lever arm, clock fields 0, no measured noise (benchmarks and the notebook
+    calibrate from this)."""
+    return dataclasses.replace(recording, info=dataclasses.replace(
+        recording.info, imu_to_body=np.full(4, np.nan), gravity=np.full(3, np.nan),
+        lever_arm=None, imu_time_offset=0.0, imu_clock_drift_ppm=0.0, imu_noise=None))
+
+
+def restamped(recording: Recording, offset: float, drift_ppm: float) -> Recording:
+    """The IMU stamps re-expressed on a clock with ``t_mocap = (1 + drift_ppm 1e-6) t' +
+    offset``: ``t' = (t - offset) / (1 + drift_ppm 1e-6)`` (an artificial clock error put on
+    a recording whose clocks agree)."""
+    imu = recording.imu
+    stamps = (imu.t - offset) / (1.0 + drift_ppm * 1e-6)
+    return dataclasses.replace(recording, imu=ImuSamples(stamps, imu.accelerometer,
+                                                         imu.gyroscope))

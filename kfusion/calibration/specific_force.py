@@ -180,8 +180,7 @@ def solve_specific_force(y: Array, design: Array, *, fit_bias: bool = True,
 
     Without ``fit_bias`` the bias and scale-error columns are dropped (x[6:] = 0, their
     covariance NaN). ``correlation`` multiplies the covariance: filtered samples are not
-    independent (about
-    ``rate / (2 cutoff)`` samples per independent one).
+    independent (about ``rate / (2 cutoff)`` samples per independent one).
     """
     columns = UNKNOWNS if fit_bias else 6
     A = design[:, :, :columns].reshape(-1, columns)
