@@ -140,6 +140,7 @@ def broad_rows(trials: int | None) -> list[dict]:
             "calibrate_s_per_3_min": seconds * 3.0 / minutes,
             "gap_rms_today_mm": gap_rms_mm(gapped.recording, truth, mask),
             "gap_rms_shifted_uncalibrated_mm": gap_rms_mm(gapped_shifted, truth, mask),
+            "lost_shifted_uncalibrated_%": gap_rms_and_lost(gapped_shifted, truth, mask)[1],
             "gap_rms_after_mm": gap_rms_mm(dataclasses.replace(
                 gapped_shifted, info=dataclasses.replace(info, imu=original.info.imu)), truth,
                 mask) if calibration.complete else np.nan,
