@@ -24,13 +24,13 @@ import time
 import numpy as np
 import pandas as pd
 
-from kfusion.calibration import calibrate_recording
+from kfusion.calibration import calibrate_recording, restamped, without_calibration
+from kfusion.calibration.evaluation import gap_rms_and_lost
 from kfusion.conventions import rotation_from_wxyz
 from kfusion.datasets import broad_trials
-from kfusion.evaluate import cut_gaps, gap_errors, metrics_from_errors
-from kfusion.methods import track_recording
+from kfusion.evaluate import cut_gaps
 from kfusion.readers.broad import read_broad
-from kfusion.recording import ImuSamples, Recording
+from kfusion.recording import Recording
 from kfusion.simulate import simulate
 
 SCENARIOS = ("random_reach", "pick_tool", "circle", "arm_lift")
@@ -41,16 +41,25 @@ def angle_deg(first: np.ndarray, second: np.ndarray) -> float:
                              * rotation_from_wxyz(second)).magnitude()))
 
 
-def unknown(recording: Recording) -> Recording:
-    """Only imu.csv and mocap.csv: mount, gravity, lever arm and clock unknown."""
-    return dataclasses.replace(recording, info=dataclasses.replace(
-        recording.info, imu_to_body=np.full(4, np.nan), gravity=np.full(3, np.nan),
-        lever_arm=None, imu_time_offset=0.0, imu_clock_drift_ppm=0.0, imu_noise=None))
-
-
 def gap_rms_mm(recording: Recording, truth: np.ndarray, mask: np.ndarray) -> float:
-    result = track_recording(recording, "kalman")
-    return float(metrics_from_errors(gap_errors(result, truth, mask))["rms_mm"])
+    """Kalman gap RMS, mm, over the gap samples the tracker bridged."""
+    return gap_rms_and_lost(recording, truth, mask)[0]
+
+
+TARGETS = {"offset_error_ms": 1.0, "drift_error_ppm": 10.0, "mount_error_deg": 1.0,
+           "mount_vs_identity_deg": 1.0, "lever_error_mm": 5.0, "calibrate_s_per_3_min": 10.0}
+"""Issue 10's targets: |value| at most this (run time: below)."""
+
+
+def mark_targets(row: dict) -> None:
+    """Add ``met``: the targets this row misses (or "all"); NaN (undetermined) misses."""
+    missed = [key for key, limit in TARGETS.items()
+              if key in row and not abs(row[key]) <= limit
+              and not (key == "lever_error_mm" and np.isnan(row[key]))]  # "where observable"
+    if "gap_rms_after_mm" in row and "gap_rms_synced_mm" in row and not (
+            row["gap_rms_after_mm"] <= 1.2 * row["gap_rms_synced_mm"] + 0.5):
+        missed.append("gap")
+    row["missed"] = ",".join(missed) or "-"
 
 
 def simulated_rows(seeds: int, duration: float) -> list[dict]:
@@ -66,12 +75,13 @@ def simulated_rows(seeds: int, duration: float) -> list[dict]:
                                imu_clock_drift_ppm=drift, lever_arm=lever)
             synced = simulate(scenario, seed=seed, duration=duration, lever_arm=lever)
             start = time.perf_counter()
-            calibration = calibrate_recording(unknown(shifted.recording))
+            calibration = calibrate_recording(without_calibration(shifted.recording))
             seconds = time.perf_counter() - start
             info = calibration.info
             truth, mask = shifted.truth.position, shifted.truth.occluded
             row = {"recording": f"{scenario}/{seed}", "offset_s": offset, "drift_ppm": drift,
-                   "offset_error_ms": (info.imu_time_offset - offset) * 1e3,
+                   "offset_error_ms": (info.imu_time_offset - offset) * 1e3
+                   if "imu_time_offset" not in calibration.undetermined else np.nan,
                    "offset_std_ms": calibration.clock_and_mount.fit.offset_std * 1e3,
                    "drift_error_ppm": info.imu_clock_drift_ppm - drift
                    if "imu_clock_drift_ppm" not in calibration.undetermined else np.nan,
@@ -81,27 +91,21 @@ def simulated_rows(seeds: int, duration: float) -> list[dict]:
                    "lever_error_mm": float(np.max(np.abs(info.lever_arm - lever)) * 1e3)
                    if info.lever_arm is not None else np.nan,
                    "undetermined": ",".join(sorted(calibration.undetermined)) or "-",
-                   "calibrate_s": seconds}
+                   "calibrate_s_per_3_min": seconds * 180.0 / duration}
             row["gap_rms_synced_mm"] = gap_rms_mm(synced.recording, synced.truth.position,
                                                   synced.truth.occluded)
-            row["gap_rms_before_mm"] = gap_rms_mm(shifted.recording, truth, mask)
+            # before: the true mount and lever arm, the clock uncalibrated (lost gaps unscored)
+            row["gap_rms_before_mm"], row["lost_before_%"] = gap_rms_and_lost(
+                shifted.recording, truth, mask)
             if calibration.complete:
                 calibrated = dataclasses.replace(shifted.recording, info=info)
-                row["gap_rms_after_mm"] = gap_rms_mm(calibrated, truth, mask)
+                row["gap_rms_after_mm"], row["lost_after_%"] = gap_rms_and_lost(calibrated, truth,
+                                                                           mask)
             else:
-                row["gap_rms_after_mm"] = np.nan
-            row["gap_target_met"] = bool(row["gap_rms_after_mm"]
-                                         <= 1.2 * row["gap_rms_synced_mm"] + 0.5)
+                row["gap_rms_after_mm"] = row["lost_after_%"] = np.nan
+            mark_targets(row)
             rows.append(row)
     return rows
-
-
-def shift(recording: Recording, offset: float, drift_ppm: float) -> Recording:
-    """IMU stamps re-expressed on a clock with ``t_mocap = (1 + d) t' + c``."""
-    imu = recording.imu
-    stamps = (imu.t - offset) / (1.0 + drift_ppm * 1e-6)
-    return dataclasses.replace(recording, imu=ImuSamples(stamps, imu.accelerometer,
-                                                         imu.gyroscope))
 
 
 def broad_rows(trials: int | None) -> list[dict]:
@@ -111,31 +115,38 @@ def broad_rows(trials: int | None) -> list[dict]:
         original = read_broad(path, mocap_step=3)
         own = calibrate_recording(original).info
         offset, drift = float(rng.uniform(-2, 2)), float(rng.uniform(-100, 100))
-        shifted = shift(original, offset, drift)
+        shifted = restamped(original, offset, drift)
         start = time.perf_counter()
         calibration = calibrate_recording(shifted)
         seconds = time.perf_counter() - start
         info = calibration.info
         expected_offset = offset * (1 + own.imu_clock_drift_ppm * 1e-6) + own.imu_time_offset
         gapped = cut_gaps(original, rng=np.random.default_rng(0))
-        gapped_shifted = shift(gapped.recording, offset, drift)
+        gapped_shifted = restamped(gapped.recording, offset, drift)
         truth, mask = gapped.truth_position, gapped.gap_mask
-        rows.append({
-            "recording": path.stem, "offset_s": offset, "drift_ppm": drift,
+        minutes = float(original.imu.t[-1] - original.imu.t[0]) / 60.0
+        row = {
+            "recording": path.stem, "minutes": minutes, "offset_s": offset, "drift_ppm": drift,
             "own_offset_ms": own.imu_time_offset * 1e3, "own_drift_ppm": own.imu_clock_drift_ppm,
-            "offset_error_ms": (info.imu_time_offset - expected_offset) * 1e3,
+            "offset_error_ms": (info.imu_time_offset - expected_offset) * 1e3
+            if "imu_time_offset" not in calibration.undetermined else np.nan,
+            # against the artificial shift alone (the dataset's clocks taken as one: its README)
+            "offset_vs_shift_ms": (info.imu_time_offset - offset) * 1e3,
             "drift_error_ppm": info.imu_clock_drift_ppm - drift - own.imu_clock_drift_ppm
             if "imu_clock_drift_ppm" not in calibration.undetermined else np.nan,
             "mount_vs_identity_deg": angle_deg(info.imu_to_body, original.info.imu_to_body)
             if calibration.complete else np.nan,
             "undetermined": ",".join(sorted(calibration.undetermined)) or "-",
-            "calibrate_s": seconds,
+            "calibrate_s_per_3_min": seconds * 3.0 / minutes,
             "gap_rms_today_mm": gap_rms_mm(gapped.recording, truth, mask),
             "gap_rms_shifted_uncalibrated_mm": gap_rms_mm(gapped_shifted, truth, mask),
+            "lost_shifted_uncalibrated_%": gap_rms_and_lost(gapped_shifted, truth, mask)[1],
             "gap_rms_after_mm": gap_rms_mm(dataclasses.replace(
                 gapped_shifted, info=dataclasses.replace(info, imu=original.info.imu)), truth,
                 mask) if calibration.complete else np.nan,
-        })
+        }
+        mark_targets(row)
+        rows.append(row)
     return rows
 
 
@@ -151,19 +162,26 @@ def main() -> int:
                         help="simulated recording length, s (default 180: 3 minutes)")
     parser.add_argument("--quick", action="store_true",
                         help="1 seed of 60 s per scenario, 2 BROAD trials")
+    parser.add_argument("--only", choices=("simulated", "broad"),
+                        help="run one half only (each takes about 5 minutes in full)")
     args = parser.parse_args()
     seeds, duration = (1, 60.0) if args.quick else (args.seeds, args.duration)
     pd.set_option("display.width", 250)
     pd.set_option("display.max_columns", 30)
     start = time.perf_counter()
-    simulated = pd.DataFrame(simulated_rows(seeds, duration)).set_index("recording")
-    print(f"\n### simulated, {duration:.0f} s, IMU 200 Hz / mocap 100 Hz, {seeds} seed(s)\n")
-    print(simulated.to_string(float_format="{:.3f}".format))
-    print(summary(simulated))
-    broad = pd.DataFrame(broad_rows(2 if args.quick else None)).set_index("recording")
-    print("\n### BROAD, mocap every 3rd sample, IMU stamps shifted and scaled\n")
-    print(broad.to_string(float_format="{:.3f}".format))
-    print(summary(broad))
+    print("targets: |offset error| <= 1 ms, |drift error| <= 10 ppm, mount <= 1 deg, lever arm "
+          "<= 5 mm where observable, gap RMS after <= 1.2 x synchronised + 0.5 mm, calibrate "
+          "< 10 s per 3 minutes; 'missed' lists the targets a row misses (undetermined = missed)")
+    if args.only != "broad":
+        simulated = pd.DataFrame(simulated_rows(seeds, duration)).set_index("recording")
+        print(f"\n### simulated, {duration:.0f} s, IMU 200 Hz / mocap 100 Hz, {seeds} seed(s)\n")
+        print(simulated.to_string(float_format="{:.3f}".format))
+        print(summary(simulated))
+    if args.only != "simulated":
+        broad = pd.DataFrame(broad_rows(2 if args.quick else None)).set_index("recording")
+        print("\n### BROAD, mocap every 3rd sample, IMU stamps shifted and scaled\n")
+        print(broad.to_string(float_format="{:.3f}".format))
+        print(summary(broad))
     print(f"\n(total benchmark time {time.perf_counter() - start:.0f} s)")
     return 0
 

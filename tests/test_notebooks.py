@@ -26,9 +26,10 @@ def code_cells(path: Path) -> list:
     return [cell for cell in notebook.cells if cell.cell_type == "code"]
 
 
-def test_the_three_notebooks_exist():
+def test_the_four_notebooks_exist():
     assert [path.name for path in NOTEBOOKS] == [
-        "01_paper_experiments.ipynb", "02_sweep_analysis.ipynb", "03_broad_real_data.ipynb"]
+        "01_paper_experiments.ipynb", "02_sweep_analysis.ipynb", "03_broad_real_data.ipynb",
+        "04_calibrate_a_recording.ipynb"]
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])

@@ -23,7 +23,7 @@ from kfusion.calibration.clock import (
 )
 from kfusion.calibration.diagnosis import diagnose
 from kfusion.calibration.noise import third_difference_std
-from kfusion.calibration.specific_force import lever_arm_matrix
+from kfusion.calibration.specific_force import SCALE_ERROR_BASIS, lever_arm_matrix
 from kfusion.cli import main
 from kfusion.conventions import imu_time_to_mocap, rotation_from_wxyz
 from kfusion.methods import track_recording
@@ -247,3 +247,28 @@ def test_calibrate_check_and_track_commands(tmp_path, capsys):
     assert yaml.safe_load((folder / "recording.yaml").read_text())["imu_noise"]
     assert main(["check", str(folder)]) == 0
     assert main(["track", str(folder), "--out", str(out)]) == 0
+
+
+def test_a_still_limb_names_the_clock_and_does_not_accuse_the_gravity(tmp_path, capsys):
+    # the first 6 s of circle are a rest (the noise estimate finds them all still): nothing
+    # times the IMU against the mocap, so the mount cannot be fitted and a correct gravity must
+    # not be reported as contradicting the data (it used to be, through a noise-fitted mount)
+    simulation = simulate("circle", seed=0, duration=6.0, imu_time_offset=1.234)
+    folder = write_recording(simulation.recording, tmp_path / "still")
+    (folder / "recording.yaml").write_text("gravity: [0, -9.81, 0]\n")
+    out = folder / "calibrated.yaml"
+    assert main(["calibrate", str(folder), "--out", str(out)]) == 2
+    captured = capsys.readouterr()
+    assert "imu_time_offset undetermined" in captured.err and "too little rotation" in \
+        captured.err, captured.err
+    assert "gravity" not in captured.err and not out.exists()
+    assert "imu_to_body: undetermined: not fitted: the clock is undetermined" in captured.out
+    assert "as given, not checked" in captured.out
+
+
+def test_the_scale_error_basis_spans_every_matrix():
+    # 9 independent matrices: any first-order scale and misalignment error E is a combination
+    basis = SCALE_ERROR_BASIS.reshape(9, 9)
+    assert np.linalg.matrix_rank(basis) == 9
+    assert np.allclose(SCALE_ERROR_BASIS[-1], np.eye(3))
+    assert all(np.trace(matrix) == 0 for matrix in SCALE_ERROR_BASIS[:-1])

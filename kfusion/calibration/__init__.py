@@ -29,7 +29,12 @@ from kfusion.calibration.paper import (
     kabsch,
     still_periods,
 )
-from kfusion.calibration.recording import SelfCalibration, calibrate_recording
+from kfusion.calibration.recording import (
+    SelfCalibration,
+    calibrate_recording,
+    restamped,
+    without_calibration,
+)
 
 __all__ = [
     "DEFAULT_GRAVITY_TOLERANCE",
@@ -50,5 +55,7 @@ __all__ = [
     "gravity_pairs",
     "kabsch",
     "on_mocap_clock",
+    "restamped",
     "still_periods",
+    "without_calibration",
 ]

@@ -275,7 +275,10 @@ def calibrate_clock_and_mount(recording: Recording, coarse_offset: float, *,
         undetermined["imu_time_offset"] = (
             f"offset uncertainty {fit.offset_std * 1e3:.1f} ms: too little rotation (RMS body "
             f"rate {principal[0]:.2f} rad/s) to time the IMU against the mocap")
-    if principal[1] < MIN_SECOND_AXIS * principal[0]:
+    if "imu_time_offset" in undetermined:
+        undetermined["imu_to_body"] = ("not fitted: the clock is undetermined, so gyroscope and "
+                                       "mocap rates cannot be paired")
+    elif principal[1] < MIN_SECOND_AXIS * principal[0]:
         axis = np.round(axes[:, 0], 2).tolist()
         undetermined["imu_to_body"] = (
             f"rotation about one axis only (body axis {axis}, RMS {principal[0]:.2f} rad/s; "

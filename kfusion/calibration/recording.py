@@ -8,6 +8,7 @@ same estimators (:mod:`kfusion.calibration.diagnosis`).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,7 +23,7 @@ from kfusion.calibration.specific_force import (
     fit_specific_force,
 )
 from kfusion.conventions import GRAVITY_MAGNITUDE_RANGE
-from kfusion.recording import ImuNoise, Recording, RecordingInfo
+from kfusion.recording import ImuNoise, ImuSamples, Recording, RecordingInfo
 
 Array = NDArray[np.float64]
 
@@ -95,7 +96,7 @@ class SelfCalibration:
                  f"{np.round(force.gravity, 3).tolist()} +- "
                  f"{np.round(force.gravity_std, 3).tolist()}; specific-force residual "
                  f"{force.residual_rms:.3f} m/s^2 RMS, {force.residual_before_rms:.3f} "
-                 "without lever arm and bias)")
+                 "without lever arm, bias and scale errors)")
             line("lever_arm", f"{np.round(force.lever_arm * 1e3, 1).tolist()} mm +- "
                  f"{np.round(force.lever_arm_std * 1e3, 1).tolist()} mm")
             lines.append("accelerometer bias: " + (
@@ -103,8 +104,13 @@ class SelfCalibration:
                 f"{np.round(force.accelerometer_bias_std, 3).tolist()} m/s^2"
                 if np.isfinite(force.accelerometer_bias_std).all() else
                 "not separable from gravity (too little change of orientation): not fitted"))
+            if np.isfinite(force.accelerometer_bias_std).all():
+                lines.append("accelerometer scale and misalignment: largest term "
+                             f"{100 * np.max(np.abs(force.accelerometer_scale_error)):.2f} % "
+                             "(fitted with the bias; not written)")
         else:
-            line("gravity", "")
+            line("gravity", f"{np.round(self.info.gravity, 4).tolist()} m/s^2 as given, not "
+                 "checked (no specific-force fit)")
             line("lever_arm", "")
         noise = self.noise
         source = (f"{noise.still_seconds:.1f} s still" if noise.source == "still"
@@ -115,13 +121,17 @@ class SelfCalibration:
         return lines
 
 
-def _gravity(given: Array, force: SpecificForceFit | None, undetermined: dict[str, str]
-             ) -> Array:
+def _gravity(given: Array, force: SpecificForceFit | None, undetermined: dict[str, str],
+             prerequisite: str | None = None) -> Array:
     """The gravity to write: the given one checked against the fit, else the fit's direction
-    at :data:`NOMINAL_GRAVITY`. ValueError when a given gravity contradicts the data."""
+    at :data:`NOMINAL_GRAVITY`. ValueError when a given gravity contradicts the data. Without a
+    fit (``prerequisite``: the undetermined quantity it needs) a given gravity is kept
+    unchecked and an absent one is undetermined."""
     if force is None:
         if not np.isfinite(given).all():
-            undetermined["gravity"] = "no visible mocap run long enough to fit it"
+            undetermined["gravity"] = (f"not fitted: {prerequisite} is undetermined"
+                                       if prerequisite else
+                                       "no visible mocap run long enough to fit it")
         return given
     fitted = force.gravity
     low, high = GRAVITY_MAGNITUDE_RANGE
@@ -152,12 +162,19 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     clock_and_mount = calibrate_clock_and_mount(recording, correlation.offset)
     fit = clock_and_mount.fit
     undetermined = dict(clock_and_mount.undetermined)
-    try:
-        force: SpecificForceFit | None = fit_specific_force(recording, fit.offset, fit.drift_ppm,
-                                                            fit.imu_to_body)
-    except ValueError:
-        force = None
-    gravity = _gravity(np.asarray(recording.info.gravity, dtype=float), force, undetermined)
+    # the specific force is rotated through the mount at the fitted clock: with either
+    # undetermined, the fitted gravity would be an artefact of a wrong mount (a still limb's
+    # Kabsch "mount" is noise), so neither check nor estimate it
+    prerequisite = next((key for key in ("imu_time_offset", "imu_to_body")
+                         if key in undetermined), None)
+    force: SpecificForceFit | None = None
+    if prerequisite is None:
+        try:
+            force = fit_specific_force(recording, fit.offset, fit.drift_ppm, fit.imu_to_body)
+        except ValueError:
+            force = None
+    gravity = _gravity(np.asarray(recording.info.gravity, dtype=float), force, undetermined,
+                       prerequisite)
     lever_arm = None
     if force is not None and np.max(force.lever_arm_std) <= MAX_LEVER_ARM_STD:
         lever_arm = force.lever_arm
@@ -166,6 +183,8 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
             f"fitted {np.round(force.lever_arm * 1e3, 1).tolist()} +- "
             f"{np.round(force.lever_arm_std * 1e3, 1).tolist()} mm: too little angular "
             f"acceleration to pin it within {MAX_LEVER_ARM_STD * 1e3:g} mm (not written)")
+    elif prerequisite is not None:
+        undetermined["lever_arm"] = f"not fitted: {prerequisite} is undetermined"
     else:
         undetermined["lever_arm"] = "no visible mocap run long enough to fit it"
     noise = estimate_noise(recording.imu)
@@ -180,3 +199,22 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     return SelfCalibration(correlation=correlation, clock_and_mount=clock_and_mount,
                            specific_force=force, noise=noise, info=info,
                            undetermined=undetermined)
+
+
+def without_calibration(recording: Recording) -> Recording:
+    """The recording as ``imu.csv`` and ``mocap.csv`` alone describe it: mount and gravity
+    unknown (NaN), no lever arm, clock fields 0, no measured noise (benchmarks and the notebook
+    calibrate from this)."""
+    return dataclasses.replace(recording, info=dataclasses.replace(
+        recording.info, imu_to_body=np.full(4, np.nan), gravity=np.full(3, np.nan),
+        lever_arm=None, imu_time_offset=0.0, imu_clock_drift_ppm=0.0, imu_noise=None))
+
+
+def restamped(recording: Recording, offset: float, drift_ppm: float) -> Recording:
+    """The IMU stamps re-expressed on a clock with ``t_mocap = (1 + drift_ppm 1e-6) t' +
+    offset``: ``t' = (t - offset) / (1 + drift_ppm 1e-6)`` (an artificial clock error put on
+    a recording whose clocks agree)."""
+    imu = recording.imu
+    stamps = (imu.t - offset) / (1.0 + drift_ppm * 1e-6)
+    return dataclasses.replace(recording, imu=ImuSamples(stamps, imu.accelerometer,
+                                                         imu.gyroscope))

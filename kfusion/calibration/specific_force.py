@@ -4,12 +4,21 @@ With the clock and the mount known, the accelerometer at mocap time t reads (IMU
 from the rigid-body origin, body frame):
 
     R_global_imu f = a_global - g + R_global_body (alpha x r + omega x (omega x r))
-                     + R_global_imu b_acc
+                     + R_global_imu (b_acc + E f)
 
 ``a_global`` from the mocap position (low-passed, then central second differences), omega and
-alpha (body frame) from the gyroscope through the mount. Unknowns ``x = [g, r, b_acc]`` (9) enter
-linearly: ``y = A x`` with ``y = R_global_imu f - a_global`` and
-``A = [-I, R_global_body L(omega, alpha), R_global_imu]``, ``L = [alpha]x + [omega]x^2``. The same
+alpha (body frame) from the gyroscope through the mount. ``E`` is the accelerometer's scale and
+misalignment error to first order (``f = (I + E) f_true + b_acc``, so
+``f_true ~ f - E f - b_acc``), ``E = sum_j e_j B_j`` over 9 basis matrices
+(:data:`SCALE_ERROR_BASIS`). Its isotropic part ``e_iso`` is told from the length of gravity
+by the limb's own acceleration only, so the gravity reported is the one the accelerometer
+measures, ``g (1 + e_iso)``, which the data pin down even when the two factors are not. A
+cheap MEMS accelerometer's 1-3 % scale and misalignment errors otherwise leak into the lever
+arm (20 mm on a simulated circle, where the centripetal acceleration and
+``omega x (omega x r)`` point the same way). Unknowns ``x = [g, r, b_acc, e]`` (18) enter
+linearly: ``y = A x`` with ``y = R_global_imu f - a_global``,
+``A = [-I, R_global_body L(omega, alpha), R_global_imu, R_global_imu [B_1 f .. B_9 f]]`` and
+``L = [alpha]x + [omega]x^2``. The same
 zero-phase low-pass filter is applied to ``y`` and to every column of ``A`` (a linear filter
 commutes with the linear model), so the doubly differentiated mocap noise is filtered out
 consistently. Edges of each visible run are trimmed where the filter rings.
@@ -41,7 +50,30 @@ MAX_LEVER_ARM_STD: Final = 0.002
 """m: a lever-arm axis fitted less precisely than this makes the lever arm undetermined."""
 MAX_BIAS_STD: Final = 0.05
 """m/s^2: a bias fitted less precisely than this is confounded with gravity (too little change
-of orientation): the fit is repeated with the bias fixed at 0."""
+of orientation): the fit is repeated with the bias and the scale errors fixed at 0."""
+
+
+def scale_error_basis() -> Array:
+    """(9, 3, 3): the 6 off-diagonal unit matrices, diag(1, -1, 0), diag(0, 1, -1) and the
+    identity (the isotropic scale, last)."""
+    basis = []
+    for row in range(3):
+        for column in range(3):
+            if row != column:
+                unit = np.zeros((3, 3))
+                unit[row, column] = 1.0
+                basis.append(unit)
+    basis += [np.diag([1.0, -1.0, 0.0]), np.diag([0.0, 1.0, -1.0]), np.eye(3)]
+    return np.asarray(basis)
+
+
+SCALE_ERROR_BASIS: Final = scale_error_basis()
+OUTLIER_FACTOR: Final = 4.0
+"""A filtered sample whose misfit exceeds this many times the median is an outlier (for
+Gaussian 3-axis misfits the median is 1.54 sigma, so about 6 sigma)."""
+MAX_REJECTION_PASSES: Final = 10
+UNKNOWNS: Final = 18
+"""g (3), r (3), b_acc (3), e (9)."""
 
 
 def cross_matrix(vectors: ArrayLike) -> Array:
@@ -69,6 +101,8 @@ class SpecificForceFit:
         lever_arm, lever_arm_std: (3,) m, body frame.
         accelerometer_bias, accelerometer_bias_std: (3,) m/s^2, IMU frame (0 and NaN when it
             could not be separated from gravity).
+        accelerometer_scale_error: (9,) scale and misalignment coefficients ``e``
+            (module docstring), dimensionless (0 when not fitted).
         residual_rms: RMS misfit per axis after the fit, m/s^2 (filtered).
         residual_before_rms: the same with the lever arm and bias at 0 and the fitted gravity,
             m/s^2.
@@ -81,6 +115,7 @@ class SpecificForceFit:
     lever_arm_std: Array
     accelerometer_bias: Array
     accelerometer_bias_std: Array
+    accelerometer_scale_error: Array
     residual_rms: float
     residual_before_rms: float
     samples: int
@@ -95,7 +130,7 @@ def _filter(values: Array, rate: float, cutoff: float) -> Array:
 def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
                           imu_to_body: ArrayLike, *, cutoff_hz: float = CUTOFF_HZ
                           ) -> tuple[Array, Array]:
-    """The filtered linear system ``y (k, 3) = A (k, 3, 9) x`` of the module docstring, over
+    """The filtered linear system ``y (k, 3) = A (k, 3, 18) x`` of the module docstring, over
     every visible mocap run of at least :data:`MIN_RUN_S` inside the IMU's span."""
     imu, mocap = recording.imu, recording.mocap
     R_body_imu = matrix_from_wxyz(imu_to_body)
@@ -125,11 +160,14 @@ def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
         R_global_imu = R_global_body @ R_body_imu
         lever = R_global_body @ lever_arm_matrix(omega @ R_body_imu.T, alpha @ R_body_imu.T)
         y = np.einsum("nij,nj->ni", R_global_imu, force) - acceleration
-        design = np.concatenate([np.broadcast_to(-np.eye(3), lever.shape), lever, R_global_imu],
-                                axis=2)
+        # R_global_imu B_j f for each basis matrix: (n, 3, 9)
+        scale = np.einsum("nik,jkl,nl->nij", R_global_imu, SCALE_ERROR_BASIS, force)
+        design = np.concatenate([np.broadcast_to(-np.eye(3), lever.shape), lever, R_global_imu,
+                                 scale], axis=2)
         # filter the IMU side like the mocap side (the acceleration is already filtered)
         y = _filter(y + acceleration, rate, cutoff_hz) - acceleration
-        design = _filter(design.reshape(len(t), -1), rate, cutoff_hz).reshape(len(t), 3, 9)
+        design = _filter(design.reshape(len(t), -1), rate, cutoff_hz).reshape(
+            len(t), 3, UNKNOWNS)
         keep = (t >= t[0] + TRIM_S) & (t <= t[-1] - TRIM_S)
         rows_y.append(y[keep])
         rows_a.append(design[keep])
@@ -141,31 +179,54 @@ def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
 
 def solve_specific_force(y: Array, design: Array, *, fit_bias: bool = True,
                          correlation: float = 1.0) -> tuple[Array, Array, Array]:
-    """Least squares of ``y = A x``; returns (x (9,), 1-sigma (9,), residual (k', 3) of the
-    inliers).
+    """Least squares of ``y = A x``; returns (x (18,), covariance (18, 18), residual (k', 3)
+    of the inliers).
 
-    Without ``fit_bias`` the bias columns are dropped (x[6:] = 0, std NaN). ``correlation``
-    multiplies the covariance: filtered samples are not independent (about
-    ``rate / (2 cutoff)`` samples per independent one).
+    Without ``fit_bias`` the bias and scale-error columns are dropped (x[6:] = 0, their
+    covariance NaN). ``correlation`` multiplies the covariance: filtered samples are not
+    independent (about ``rate / (2 cutoff)`` samples per independent one).
     """
-    columns = 9 if fit_bias else 6
+    columns = UNKNOWNS if fit_bias else 6
     A = design[:, :, :columns].reshape(-1, columns)
     b = y.reshape(-1)
     solution, *_ = np.linalg.lstsq(A, b, rcond=None)
-    # one pass of outlier rejection: samples whose misfit exceeds 5 times the median (a mocap
-    # glitch or marker swap, spread by the filter) are dropped and the fit repeated
-    misfit = np.linalg.norm((b - A @ solution).reshape(-1, 3), axis=1)
-    inlier = np.repeat(misfit <= 5.0 * np.median(misfit), 3)
-    A, b = A[inlier], b[inlier]
-    solution, *_ = np.linalg.lstsq(A, b, rcond=None)
+    # outlier rejection, repeated until the inliers settle: samples whose misfit exceeds
+    # OUTLIER_FACTOR times the median (a mocap glitch or marker swap, a tap on the IMU, spread
+    # by the filter) are dropped and the fit repeated. One pass is not enough when the
+    # outliers are many: the first fit is pulled, so the median misfit is inflated (on BROAD's
+    # tapping trial a single pass left the lever arm 35 mm off)
+    A_all, b_all = A, b
+    inlier = np.ones(len(b_all) // 3, dtype=bool)
+    for _ in range(MAX_REJECTION_PASSES):
+        misfit = np.linalg.norm((b_all - A_all @ solution).reshape(-1, 3), axis=1)
+        updated = misfit <= OUTLIER_FACTOR * np.median(misfit)
+        if np.array_equal(updated, inlier):
+            break
+        inlier = updated
+        rows = np.repeat(inlier, 3)
+        solution, *_ = np.linalg.lstsq(A_all[rows], b_all[rows], rcond=None)
+    rows = np.repeat(inlier, 3)
+    A, b = A_all[rows], b_all[rows]
     residual = b - A @ solution
     sigma2 = float(residual @ residual) / max(len(b) - columns, 1)
     covariance = np.linalg.pinv(A.T @ A) * sigma2 * correlation
-    x = np.zeros(9)
-    std = np.full(9, np.nan)
+    x = np.zeros(UNKNOWNS)
+    full = np.full((UNKNOWNS, UNKNOWNS), np.nan)
     x[:columns] = solution
-    std[:columns] = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-    return x, std, residual.reshape(-1, 3)
+    full[:columns, :columns] = covariance
+    return x, full, residual.reshape(-1, 3)
+
+
+def measured_gravity(x: Array, covariance: Array) -> tuple[Array, Array]:
+    """Gravity as the accelerometer measures it, ``h = g (1 + e_iso)`` (x[:3], x[-1]), and its
+    1-sigma from ``J C J^T`` with ``J = dh/d(g, e_iso) = [(1 + e_iso) I, g]``; just ``g`` when
+    the scale was not fitted (its covariance NaN)."""
+    if not np.isfinite(covariance[-1, -1]):
+        return x[:3], np.sqrt(np.maximum(np.diag(covariance)[:3], 0.0))
+    index = [0, 1, 2, UNKNOWNS - 1]
+    jacobian = np.hstack([(1.0 + x[-1]) * np.eye(3), x[:3, None]])
+    covariance_h = jacobian @ covariance[np.ix_(index, index)] @ jacobian.T
+    return x[:3] * (1.0 + x[-1]), np.sqrt(np.maximum(np.diag(covariance_h), 0.0))
 
 
 def fit_specific_force(recording: Recording, offset: float, drift_ppm: float,
@@ -177,14 +238,16 @@ def fit_specific_force(recording: Recording, offset: float, drift_ppm: float,
                                       cutoff_hz=cutoff_hz)
     rate = 1.0 / float(np.median(np.diff(recording.mocap.t)))
     correlation = max(1.0, rate / (2.0 * cutoff_hz))
-    x, std, residual = solve_specific_force(y, design, correlation=correlation)
-    if not np.max(std[6:]) <= MAX_BIAS_STD:
-        x, std, residual = solve_specific_force(y, design, fit_bias=False,
-                                                correlation=correlation)
+    x, covariance, residual = solve_specific_force(y, design, correlation=correlation)
+    if not np.max(np.sqrt(np.diag(covariance)[6:9])) <= MAX_BIAS_STD:
+        x, covariance, residual = solve_specific_force(y, design, fit_bias=False,
+                                                       correlation=correlation)
+    std = np.sqrt(np.maximum(np.diag(covariance), 0.0))
     before = y.reshape(-1) - design[:, :, :3].reshape(-1, 3) @ x[:3]
-    return SpecificForceFit(gravity=x[:3], gravity_std=std[:3], lever_arm=x[3:6],
-                            lever_arm_std=std[3:6], accelerometer_bias=x[6:],
-                            accelerometer_bias_std=std[6:],
+    gravity, gravity_std = measured_gravity(x, covariance)
+    return SpecificForceFit(gravity=gravity, gravity_std=gravity_std, lever_arm=x[3:6],
+                            lever_arm_std=std[3:6], accelerometer_bias=x[6:9],
+                            accelerometer_bias_std=std[6:9], accelerometer_scale_error=x[9:],
                             residual_rms=float(np.sqrt(np.mean(residual**2))),
                             residual_before_rms=float(np.sqrt(np.mean(before**2))),
                             samples=len(y))

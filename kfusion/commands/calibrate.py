@@ -126,7 +126,9 @@ def run(args: argparse.Namespace) -> int:
     calibration = calibrate_recording(recording, max_offset=args.max_offset)
     print("\n".join(f"# {line}" for line in calibration.report()))
     if not calibration.complete:
-        missing = [key for key in ("imu_to_body", "gravity") if key in calibration.undetermined]
+        # name the root cause first: the mount needs the clock, gravity needs both
+        missing = [key for key in ("imu_time_offset", "imu_to_body", "gravity")
+                   if key in calibration.undetermined]
         raise ValueError(f"{args.folder}: {missing[0]} undetermined: "
                          f"{calibration.undetermined[missing[0]]}; nothing written")
     text = yaml.safe_dump(info_to_dict(calibration.info), sort_keys=False)
