@@ -111,6 +111,11 @@ def quantity_label(name: str) -> str:
     return name.replace("_", " ")
 
 
+def per_gap_label(metric: str) -> str:
+    """Label of a per-gap metric with its unit: ``max_mm`` -> "max error per gap (mm)"."""
+    return quantity_label(metric).replace("gap error", "error per gap")
+
+
 def tick_text(value: object) -> str:
     """A grid value as a tick label: a range ``[0.1, 0.3]`` (list or its JSON text) as
     ``0.1-0.3``, numbers with ``:g``."""
@@ -328,9 +333,34 @@ def _draw_gap_errors(ax: Axes, t: NDArray[np.float64], reference: NDArray[np.flo
                 lw=min(style["lw"], 2.0), zorder=2 + index, label=name)
     ax.axhline(0, color="k", lw=0.6, zorder=1)
     ax.set_xlabel("t (s)", fontsize=8)
-    ax.set_ylabel(f"{AXIS_NAMES[axis]} error (mm)", fontsize=8)
+    inside = slice(max(start - 1, 0), min(stop + 1, len(t)))
+    threshold = symlog_threshold([
+        float(np.nanmax(np.abs(1000 * (np.asarray(result.position)[inside, axis]
+                                       - reference[inside, axis])), initial=0.0))
+        for result in results.values()])
+    if threshold is None:
+        ax.set_ylabel(f"{AXIS_NAMES[axis]} error (mm)", fontsize=8)
+    else:
+        ax.set_yscale("symlog", linthresh=threshold, linscale=1.0)
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.set_ylabel(f"{AXIS_NAMES[axis]} error (mm),\nlog beyond ±{threshold:g}", fontsize=8)
     ax.tick_params(labelsize=8)
     ax.grid(alpha=0.3)
+
+
+def symlog_threshold(peaks: Sequence[float]) -> float | None:
+    """Linear range (mm) of a symmetric-log error axis, or None for a linear axis.
+
+    ``peaks`` are the methods' largest absolute errors (mm) in a panel. When the largest is ten
+    times the second largest or more (the baseline's tens of millimetres against the Kalman
+    filter's one), a linear axis draws every other method as a flat line at zero; then the axis
+    is linear up to the second-largest peak rounded down to a power of ten,
+    ``10 ** floor(log10(second))``, and logarithmic beyond, so both are readable.
+    """
+    finite = sorted((p for p in peaks if np.isfinite(p) and p > 0), reverse=True)
+    if len(finite) < 2 or finite[0] < 10 * finite[1]:
+        return None
+    return float(10 ** np.floor(np.log10(finite[1])))
 
 
 def gap_duration(t: NDArray[np.float64], start: int, stop: int) -> float:
@@ -388,6 +418,8 @@ def trajectory_figure(
                         "axes fraction"), ha="center", va="bottom", fontsize=8, weight="bold")
         full.append(ax)
     full[-1].set_xlabel("t (s)")
+    if window is not None:
+        full[0].set_xlim(max(window[0], t[0]), min(window[1], t[-1]))
     zoom_axes = []
     for column, (start, stop, axis) in enumerate(zoomed):
         ax = figure.add_subplot(grid[len(axes), column])
@@ -506,7 +538,7 @@ def error_by_gap_length_figure(per_gap: pd.DataFrame, *, metric: str = "max_mm",
         ax.plot(centres, medians, color=style["color"], ls=style["ls"], lw=1.6, alpha=0.8,
                 zorder=1)
     ax.set_xlabel(quantity_label("duration_s"))
-    ax.set_ylabel(quantity_label(metric).replace("gap error", "error per gap"))
+    ax.set_ylabel(per_gap_label(metric))
     ax.set_yscale("log")
     ax.grid(alpha=0.3, which="both")
     methods = [str(method) for method in per_gap["method"].unique()] if len(per_gap) else []

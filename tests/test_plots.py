@@ -24,6 +24,7 @@ from kfusion.plots import (
     in_gaps,
     quantity_label,
     sweep_lines_figure,
+    symlog_threshold,
     text_colour,
     tick_text,
     trajectory_figure,
@@ -191,6 +192,27 @@ def test_trajectory_window_keeps_only_gaps_inside_it_for_the_zoom():
                                window=(0.0, 4.0))
     titles = [ax.get_title() for ax in figure.axes if ax.get_title()]
     assert titles == ["A: gap at 1.00 s, 0.21 s long", "B: gap at 3.00 s, 0.31 s long"]
+    assert figure.axes[0].get_xlim() == (0.0, 4.0)  # the window, not the gaps' shading
+
+
+def test_symlog_threshold_only_when_one_method_dwarfs_the_next():
+    # baseline 31 mm against kalman 2.5 mm and smoother 0.3 mm: linear up to 1 mm, log beyond
+    assert symlog_threshold([31.0, 2.5, 0.3]) == pytest.approx(1.0)
+    assert symlog_threshold([932.0, 0.45]) == pytest.approx(0.1)
+    assert symlog_threshold([9.0, 1.0, 0.1]) is None  # within a decade of each other: linear
+    assert symlog_threshold([40.0]) is None  # a single method
+    assert symlog_threshold([40.0, 0.0, np.nan]) is None  # nothing to read beside it
+
+
+def test_gap_zoom_turns_log_where_the_baseline_dwarfs_the_kalman_filter():
+    t, truth, measured, gap, results = synthetic()
+    figure = gap_zoom_figure(t, measured, results, gap, truth=truth, axis=1, gaps=4)
+    scales = {ax.get_title()[7:11]: ax.get_yscale() for ax in figure.axes if ax.get_title()}
+    # peaks (baseline, kalman) per gap: 4/1, 20/2 (on the edge), 1/6, 9/0.5 mm (ERRORS_MM)
+    assert (scales["1.00"], scales["5.00"], scales["7.00"]) == ("linear", "linear", "symlog")
+    log_axes = [ax for ax in figure.axes if ax.get_yscale() == "symlog"]
+    assert log_axes[-1].yaxis.get_transform().linthresh == pytest.approx(0.1)
+    assert all("log beyond" in ax.get_ylabel() for ax in log_axes)
 
 
 def test_gap_zoom_figure_shows_the_worst_gaps_with_the_legend_outside():
