@@ -32,6 +32,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.axes import Axes  # noqa: E402
+from matplotlib.axis import Axis  # noqa: E402
 from matplotlib.colors import LogNorm, Normalize, TwoSlopeNorm  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
@@ -160,6 +161,14 @@ def colour_scale(values: NDArray[np.float64], value: str) -> tuple[Normalize, st
     return Normalize(vmin=low, vmax=high if high > low else low + 1.0), "viridis"
 
 
+def cell_text(value: float, *, fraction: bool) -> str:
+    """A heat-map cell's value: fractions with three decimals (0.9996 reads "1.000", not a
+    perfect "1"), others with three significant digits, thousands in full ("1,234")."""
+    if fraction:
+        return f"{value:.3f}"
+    return f"{value:,.0f}" if abs(value) >= 1000 else f"{value:.3g}"
+
+
 def text_colour(rgba: Sequence[float]) -> str:
     """Black or white, whichever reads better on a cell of colour ``rgba`` (luma 0.299 R +
     0.587 G + 0.114 B against 0.5)."""
@@ -192,6 +201,22 @@ def legend_outside(figure: Figure, handles: Sequence[Any], labels: Sequence[str]
     else:
         figure.legend(handles, labels, loc="outside right center", fontsize=8, title=title,
                       title_fontsize=8, frameon=False)
+
+
+def plain_log_ticks(axis: Axis) -> None:
+    """Label a log ``axis`` with plain numbers (0.1, 1, 10 rather than 10^-1, 10^0, 10^1); when
+    its view spans less than two decades, label the minor ticks at 2 and 5 times a power of ten
+    too, so that a short log axis never shows only one or two numbers."""
+    axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+
+    def minor(value: float, _: int) -> str:
+        low, high = sorted(axis.get_view_interval())
+        if value <= 0 or low <= 0 or high / low >= 100:
+            return ""
+        mantissa = value / 10 ** np.floor(np.log10(value) + 1e-9)
+        return f"{value:g}" if min(abs(mantissa - 2), abs(mantissa - 5)) < 1e-6 else ""
+
+    axis.set_minor_formatter(FuncFormatter(minor))
 
 
 def _unique_handles(axes: Sequence[Axes]) -> tuple[list[Any], list[str]]:
@@ -351,16 +376,18 @@ def _draw_gap_errors(ax: Axes, t: NDArray[np.float64], reference: NDArray[np.flo
 def symlog_threshold(peaks: Sequence[float]) -> float | None:
     """Linear range (mm) of a symmetric-log error axis, or None for a linear axis.
 
-    ``peaks`` are the methods' largest absolute errors (mm) in a panel. When the largest is ten
-    times the second largest or more (the baseline's tens of millimetres against the Kalman
-    filter's one), a linear axis draws every other method as a flat line at zero; then the axis
-    is linear up to the second-largest peak rounded down to a power of ten,
-    ``10 ** floor(log10(second))``, and logarithmic beyond, so both are readable.
+    ``peaks`` are the methods' largest absolute errors (mm) in a panel. The second largest,
+    rounded up to a power of ten, ``L = 10 ** ceil(log10(second))``, bounds every method but
+    the worst. When the worst reaches ``10 L`` or more (the baseline's tens or hundreds of
+    millimetres against the Kalman filter's one), a linear axis would draw the others as a flat
+    line at zero; then the axis is linear on [-L, L] and logarithmic beyond, so that both are
+    readable and the mocap noise outside the gap looks as small as it is.
     """
     finite = sorted((p for p in peaks if np.isfinite(p) and p > 0), reverse=True)
-    if len(finite) < 2 or finite[0] < 10 * finite[1]:
+    if len(finite) < 2:
         return None
-    return float(10 ** np.floor(np.log10(finite[1])))
+    linear = float(10 ** np.ceil(np.log10(finite[1]) - 1e-9))  # 1.0000001 mm: 1 mm
+    return linear if finite[0] >= 10 * linear else None
 
 
 def gap_duration(t: NDArray[np.float64], start: int, stop: int) -> float:
@@ -540,6 +567,7 @@ def error_by_gap_length_figure(per_gap: pd.DataFrame, *, metric: str = "max_mm",
     ax.set_xlabel(quantity_label("duration_s"))
     ax.set_ylabel(per_gap_label(metric))
     ax.set_yscale("log")
+    plain_log_ticks(ax.yaxis)
     ax.grid(alpha=0.3, which="both")
     methods = [str(method) for method in per_gap["method"].unique()] if len(per_gap) else []
     handles = [Line2D([], [], ls="none", marker=method_style(m, i)["marker"],
@@ -570,15 +598,17 @@ def heatmap_figure(table: pd.DataFrame, *, rows: str, columns: str, value: str,
         figsize=(2.4 + (1.1 * n_columns + 0.6) * len(grids), 1.6 + 0.6 * n_rows))
     image = None
     for ax, (label, grid) in zip(plot_axes[0], grids, strict=True):
-        image = _draw_heatmap_panel(ax, grid, norm, cmap)
+        image = _draw_heatmap_panel(ax, grid, norm, cmap, fraction=is_fraction(value))
         ax.set_xlabel(quantity_label(columns))
         if label is not None:
             ax.set_title(f"{quantity_label(str(facet))}: {tick_text(label)}", fontsize=9)
     plot_axes[0, 0].set_ylabel(quantity_label(rows))
     if image is not None:
         bar = figure.colorbar(image, ax=list(plot_axes[0]), label=quantity_label(value))
-        bar.ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        bar.ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
+        if isinstance(norm, LogNorm):
+            plain_log_ticks(bar.ax.yaxis)
+        else:
+            bar.ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         if value.startswith("coverage"):
             bar.ax.axhline(NOMINAL_COVERAGE_3SIGMA, color="k", lw=1.0)
     if title:
@@ -586,8 +616,9 @@ def heatmap_figure(table: pd.DataFrame, *, rows: str, columns: str, value: str,
     return _save(figure, path)
 
 
-def _draw_heatmap_panel(ax: Axes, grid: pd.DataFrame, norm: Normalize, cmap: str) -> Any:
-    """One heat-map panel with each cell's value written in it."""
+def _draw_heatmap_panel(ax: Axes, grid: pd.DataFrame, norm: Normalize, cmap: str, *,
+                        fraction: bool) -> Any:
+    """One heat-map panel with each cell's value written in it (:func:`cell_text`)."""
     data = grid.to_numpy(dtype=float)
     image = ax.imshow(data, cmap=cmap, norm=norm, aspect="auto")
     ax.set_xticks(range(grid.shape[1]), [tick_text(c) for c in grid.columns], rotation=30,
@@ -598,8 +629,8 @@ def _draw_heatmap_panel(ax: Axes, grid: pd.DataFrame, norm: Normalize, cmap: str
         for j in range(grid.shape[1]):
             cell = data[i, j]
             colour = "k" if np.isnan(cell) else text_colour(colours(norm(cell)))
-            ax.text(j, i, "-" if np.isnan(cell) else f"{cell:.3g}", ha="center", va="center",
-                    fontsize=8, color=colour)
+            ax.text(j, i, "-" if np.isnan(cell) else cell_text(cell, fraction=fraction),
+                    ha="center", va="center", fontsize=8, color=colour)
     return image
 
 
@@ -655,6 +686,5 @@ def _draw_lines_panel(ax: Axes, frame: pd.DataFrame, *, x: str, value: str, hue:
     ax.set_xlabel(quantity_label(x))
     if log:
         ax.set_yscale("log")
-        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
+        plain_log_ticks(ax.yaxis)
     ax.grid(alpha=0.3, which="both")

@@ -3,6 +3,8 @@ log or diverging colour scales where they are needed, units on axes, coverage ba
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
@@ -14,6 +16,7 @@ from kfusion.plots import (
     NOMINAL_COVERAGE_3SIGMA,
     binned_median,
     busiest_window,
+    cell_text,
     clipped_band,
     colour_scale,
     error_by_gap_length_figure,
@@ -22,6 +25,7 @@ from kfusion.plots import (
     gap_zoom_figure,
     heatmap_figure,
     in_gaps,
+    plain_log_ticks,
     quantity_label,
     sweep_lines_figure,
     symlog_threshold,
@@ -151,6 +155,28 @@ def test_labels_carry_units():
     assert tick_text("mpu9255") == "mpu9255"
 
 
+def visible_tick_labels(axis) -> list[str]:
+    low, high = sorted(axis.get_view_interval())
+    return [tick.label1.get_text() for tick in axis.get_major_ticks() + axis.get_minor_ticks()
+            if tick.label1.get_text() and low * 0.999 <= tick.get_loc() <= high * 1.001]
+
+
+def test_log_axes_read_as_plain_numbers_and_a_short_one_labels_2_and_5():
+    figure, ax = plt.subplots()
+    ax.set_yscale("log")
+    plain_log_ticks(ax.yaxis)
+    ax.set_ylim(1.0, 20.0)  # 1.3 decades: 1, 2, 5, 10, 20
+    figure.canvas.draw()
+    labels = visible_tick_labels(ax.yaxis)
+    assert sorted(labels, key=float) == ["1", "2", "5", "10", "20"]
+    ax.set_ylim(0.1, 1000.0)  # four decades: the decades alone
+    figure.canvas.draw()
+    labels = visible_tick_labels(ax.yaxis)
+    assert sorted(labels, key=float) == ["0.1", "1", "10", "100", "1000"]
+    assert cell_text(0.99962, fraction=True) == "1.000" and cell_text(932.04, fraction=False) == \
+        "932" and cell_text(1234.5, fraction=False) == "1,234"
+
+
 def test_small_helpers_by_hand():
     centres, medians = binned_median(np.array([0.0, 0.1, 0.2, 1.0]),
                                      np.array([1.0, 3.0, 2.0, 7.0]), bins=2)
@@ -195,24 +221,27 @@ def test_trajectory_window_keeps_only_gaps_inside_it_for_the_zoom():
     assert figure.axes[0].get_xlim() == (0.0, 4.0)  # the window, not the gaps' shading
 
 
-def test_symlog_threshold_only_when_one_method_dwarfs_the_next():
-    # baseline 31 mm against kalman 2.5 mm and smoother 0.3 mm: linear up to 1 mm, log beyond
-    assert symlog_threshold([31.0, 2.5, 0.3]) == pytest.approx(1.0)
-    assert symlog_threshold([932.0, 0.45]) == pytest.approx(0.1)
-    assert symlog_threshold([9.0, 1.0, 0.1]) is None  # within a decade of each other: linear
+def test_symlog_threshold_only_when_one_method_dwarfs_the_rest():
+    # baseline 932 mm against kalman 0.45 mm: linear on [-1, 1] mm, log beyond
+    assert symlog_threshold([932.0, 0.45, 0.1]) == pytest.approx(1.0)
+    assert symlog_threshold([250.0, 2.5]) == pytest.approx(10.0)
+    assert symlog_threshold([31.0, 2.5, 0.3]) is None  # 31 mm is inside a decade of 10 mm
+    assert symlog_threshold([9.0, 1.0]) is None
     assert symlog_threshold([40.0]) is None  # a single method
     assert symlog_threshold([40.0, 0.0, np.nan]) is None  # nothing to read beside it
 
 
 def test_gap_zoom_turns_log_where_the_baseline_dwarfs_the_kalman_filter():
     t, truth, measured, gap, results = synthetic()
+    baseline = results["baseline"]
+    results["baseline"] = replace(baseline, position=truth + 10 * (baseline.position - truth))
     figure = gap_zoom_figure(t, measured, results, gap, truth=truth, axis=1, gaps=4)
-    scales = {ax.get_title()[7:11]: ax.get_yscale() for ax in figure.axes if ax.get_title()}
-    # peaks (baseline, kalman) per gap: 4/1, 20/2 (on the edge), 1/6, 9/0.5 mm (ERRORS_MM)
-    assert (scales["1.00"], scales["5.00"], scales["7.00"]) == ("linear", "linear", "symlog")
-    log_axes = [ax for ax in figure.axes if ax.get_yscale() == "symlog"]
-    assert log_axes[-1].yaxis.get_transform().linthresh == pytest.approx(0.1)
-    assert all("log beyond" in ax.get_ylabel() for ax in log_axes)
+    # peaks (baseline, kalman) per gap, mm: 40/1, 200/2, 10/6, 90/0.5
+    scales = [(ax.get_yscale(), getattr(ax.yaxis.get_transform(), "linthresh", None))
+              for ax in figure.axes if ax.get_title()]
+    assert scales == [("symlog", 1.0), ("symlog", 10.0), ("linear", None), ("symlog", 1.0)]
+    assert all("log beyond ±" in ax.get_ylabel() for ax in figure.axes
+               if ax.get_yscale() == "symlog")
 
 
 def test_gap_zoom_figure_shows_the_worst_gaps_with_the_legend_outside():
