@@ -205,13 +205,13 @@ def legend_outside(figure: Figure, handles: Sequence[Any], labels: Sequence[str]
 
 def plain_log_ticks(axis: Axis) -> None:
     """Label a log ``axis`` with plain numbers (0.1, 1, 10 rather than 10^-1, 10^0, 10^1); when
-    its view spans less than two decades, label the minor ticks at 2 and 5 times a power of ten
+    its view spans less than three decades, label the minor ticks at 2 and 5 times a power of ten
     too, so that a short log axis never shows only one or two numbers."""
     axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
 
     def minor(value: float, _: int) -> str:
         low, high = sorted(axis.get_view_interval())
-        if value <= 0 or low <= 0 or high / low >= 100:
+        if value <= 0 or low <= 0 or high / low >= 1000:
             return ""
         mantissa = value / 10 ** np.floor(np.log10(value) + 1e-9)
         return f"{value:g}" if min(abs(mantissa - 2), abs(mantissa - 5)) < 1e-6 else ""
@@ -584,11 +584,14 @@ def heatmap_figure(table: pd.DataFrame, *, rows: str, columns: str, value: str,
                    facet: str | None = None) -> Figure:
     """Heat map of ``value`` (mean over repeats and any other column) on a ``rows`` x ``columns``
     grid of a sweep; with ``facet``, one panel per value of that column on a shared colour
-    scale (:func:`colour_scale`: log where values span decades, diverging for coverage).
-    ``table`` is a sweep's results table (one row per run)."""
+    scale (:func:`colour_scale`: log where values span decades, diverging for coverage). A
+    column without values stays, its cells marked "–" ("no bound" for the baseline's coverage),
+    so that every map of a sweep shows the same methods. ``table`` is a sweep's results
+    table (one row per run)."""
     panels = [(None, table)] if facet is None else list(table.groupby(facet, sort=True))
     grids = [(label, frame.pivot_table(index=rows, columns=columns, values=value,
-                                       aggfunc="mean")) for label, frame in panels]
+                                       aggfunc="mean", dropna=False))
+             for label, frame in panels]
     values = np.concatenate([grid.to_numpy(dtype=float).ravel() for _, grid in grids])
     norm, cmap = colour_scale(values, value)
     n_rows = max(grid.shape[0] for _, grid in grids)
@@ -598,7 +601,8 @@ def heatmap_figure(table: pd.DataFrame, *, rows: str, columns: str, value: str,
         figsize=(2.4 + (1.1 * n_columns + 0.6) * len(grids), 1.6 + 0.6 * n_rows))
     image = None
     for ax, (label, grid) in zip(plot_axes[0], grids, strict=True):
-        image = _draw_heatmap_panel(ax, grid, norm, cmap, fraction=is_fraction(value))
+        image = _draw_heatmap_panel(ax, grid, norm, cmap, fraction=is_fraction(value),
+                                    missing="no bound" if value.startswith("coverage") else "–")
         ax.set_xlabel(quantity_label(columns))
         if label is not None:
             ax.set_title(f"{quantity_label(str(facet))}: {tick_text(label)}", fontsize=9)
@@ -617,8 +621,9 @@ def heatmap_figure(table: pd.DataFrame, *, rows: str, columns: str, value: str,
 
 
 def _draw_heatmap_panel(ax: Axes, grid: pd.DataFrame, norm: Normalize, cmap: str, *,
-                        fraction: bool) -> Any:
-    """One heat-map panel with each cell's value written in it (:func:`cell_text`)."""
+                        fraction: bool, missing: str) -> Any:
+    """One heat-map panel with each cell's value written in it (:func:`cell_text`), ``missing``
+    in cells without one."""
     data = grid.to_numpy(dtype=float)
     image = ax.imshow(data, cmap=cmap, norm=norm, aspect="auto")
     ax.set_xticks(range(grid.shape[1]), [tick_text(c) for c in grid.columns], rotation=30,
@@ -629,7 +634,7 @@ def _draw_heatmap_panel(ax: Axes, grid: pd.DataFrame, norm: Normalize, cmap: str
         for j in range(grid.shape[1]):
             cell = data[i, j]
             colour = "k" if np.isnan(cell) else text_colour(colours(norm(cell)))
-            ax.text(j, i, "-" if np.isnan(cell) else cell_text(cell, fraction=fraction),
+            ax.text(j, i, missing if np.isnan(cell) else cell_text(cell, fraction=fraction),
                     ha="center", va="center", fontsize=8, color=colour)
     return image
 

@@ -161,7 +161,7 @@ def visible_tick_labels(axis) -> list[str]:
             if tick.label1.get_text() and low * 0.999 <= tick.get_loc() <= high * 1.001]
 
 
-def test_log_axes_read_as_plain_numbers_and_a_short_one_labels_2_and_5():
+def test_log_axes_read_as_plain_numbers_and_short_ones_label_2_and_5():
     figure, ax = plt.subplots()
     ax.set_yscale("log")
     plain_log_ticks(ax.yaxis)
@@ -274,6 +274,11 @@ def test_heatmap_uses_a_log_scale_when_the_baseline_swamps_the_others():
     figure = heatmap_figure(sweep_table(), rows="data.occlusions.gap_range", columns="method",
                             value="coverage_3sigma")
     assert isinstance(figure.axes[0].images[0].norm, TwoSlopeNorm)
+    # the baseline gives no bound: its column stays, marked, beside the others
+    ax = figure.axes[0]
+    assert [label.get_text() for label in ax.get_xticklabels()] == ["baseline", "kalman",
+                                                                    "smoother"]
+    assert [text.get_text() for text in ax.texts].count("no bound") == 2
 
 
 def test_sweep_lines_keep_coverage_bands_below_one_and_the_legend_outside():
