@@ -205,13 +205,13 @@ def legend_outside(figure: Figure, handles: Sequence[Any], labels: Sequence[str]
 
 def plain_log_ticks(axis: Axis) -> None:
     """Label a log ``axis`` with plain numbers (0.1, 1, 10 rather than 10^-1, 10^0, 10^1); when
-    its view spans less than three decades, label the minor ticks at 2 and 5 times a power of ten
-    too, so that a short log axis never shows only one or two numbers."""
+    its view spans less than 3.5 decades, label the minor ticks at 2 and 5 times a power of ten
+    too (at most about ten labels), so that an axis never shows only two or three numbers."""
     axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
 
     def minor(value: float, _: int) -> str:
         low, high = sorted(axis.get_view_interval())
-        if value <= 0 or low <= 0 or high / low >= 1000:
+        if value <= 0 or low <= 0 or high / low >= 10 ** 3.5:
             return ""
         mantissa = value / 10 ** np.floor(np.log10(value) + 1e-9)
         return f"{value:g}" if min(abs(mantissa - 2), abs(mantissa - 5)) < 1e-6 else ""
@@ -658,6 +658,9 @@ def sweep_lines_figure(table: pd.DataFrame, *, x: str, value: str, hue: str = "m
         if label is not None:
             ax.set_title(f"{quantity_label(str(facet))}: {tick_text(label)}", fontsize=9)
     plot_axes[0, 0].set_ylabel(quantity_label(value))
+    if fraction:  # after every panel is drawn: the shared limits then hold all their bands
+        plot_axes[0, 0].autoscale_view()
+        plot_axes[0, 0].set_ylim(max(plot_axes[0, 0].get_ylim()[0], 0.0), 1.01)
     legend_outside(figure, *_unique_handles(list(plot_axes[0])), title=quantity_label(hue))
     if title:
         figure.suptitle(title)
@@ -685,8 +688,6 @@ def _draw_lines_panel(ax: Axes, frame: pd.DataFrame, *, x: str, value: str, hue:
     if value.startswith("coverage"):
         ax.axhline(NOMINAL_COVERAGE_3SIGMA, color="k", lw=0.8, ls=":",
                    label=f"calibrated 3σ: {NOMINAL_COVERAGE_3SIGMA:.3f}")
-    if fraction:
-        ax.set_ylim(top=1.01)
     ax.set_xticks(list(positions.values()), [tick_text(key) for key in positions], rotation=20)
     ax.set_xlabel(quantity_label(x))
     if log:

@@ -295,3 +295,19 @@ def test_sweep_lines_keep_coverage_bands_below_one_and_the_legend_outside():
     figure = sweep_lines_figure(sweep_table(), x="data.occlusions.gap_range", value="rms_mm")
     assert figure.axes[0].get_yscale() == "log"
     assert not legend_overlaps_any_axes(figure)
+
+
+def test_sweep_line_panels_share_limits_that_hold_every_panels_band():
+    table = sweep_table()
+    table["data.imu"] = "mpu9255"
+    wide = table[table["method"] == "kalman"].assign(**{"data.imu": "um7"})
+    wide["coverage_3sigma"] = [0.90, 0.96, 0.90, 0.96]  # mean 0.93, std 0.042 per gap range
+    figure = sweep_lines_figure(pd.concat([table, wide]), x="data.occlusions.gap_range",
+                                value="coverage_3sigma", facet="data.imu", log=False)
+    bottoms = [collection.get_paths()[0].vertices[:, 1].min() for ax in figure.axes
+               for collection in ax.collections]
+    low, high = figure.axes[0].get_ylim()
+    assert min(bottoms) == pytest.approx(0.93 - 0.06 / np.sqrt(2))
+    assert low <= min(bottoms) and high == pytest.approx(1.01)
+    assert figure.axes[1].get_ylim() == (low, high)
+    assert not legend_overlaps_any_axes(figure)
