@@ -36,7 +36,7 @@ from matplotlib.axis import Axis  # noqa: E402
 from matplotlib.colors import LogNorm, Normalize, TwoSlopeNorm  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
-from matplotlib.ticker import FuncFormatter  # noqa: E402
+from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from kfusion.conventions import LOST  # noqa: E402
@@ -367,6 +367,9 @@ def _draw_gap_errors(ax: Axes, t: NDArray[np.float64], reference: NDArray[np.flo
         ax.set_ylabel(f"{AXIS_NAMES[axis]} error (mm)", fontsize=8)
     else:
         ax.set_yscale("symlog", linthresh=threshold, linscale=1.0)
+        # ticks at 1 and 3 times each power of ten: a peak between decades stays readable
+        ax.yaxis.set_major_locator(SymmetricalLogLocator(linthresh=threshold, base=10,
+                                                         subs=[1.0, 3.0]))
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         ax.set_ylabel(f"{AXIS_NAMES[axis]} error (mm),\nlog beyond ±{threshold:g}", fontsize=8)
     ax.tick_params(labelsize=8)

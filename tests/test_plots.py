@@ -242,6 +242,9 @@ def test_gap_zoom_turns_log_where_the_baseline_dwarfs_the_kalman_filter():
     assert scales == [("symlog", 1.0), ("symlog", 10.0), ("linear", None), ("symlog", 1.0)]
     assert all("log beyond ±" in ax.get_ylabel() for ax in figure.axes
                if ax.get_yscale() == "symlog")
+    # a 40 mm peak reads between labelled ticks at 30 and the top, not in an unlabelled decade
+    first = figure.axes[0].yaxis.get_major_locator().tick_values(-1.0, 40.0)
+    assert {0.0, 1.0, 3.0, 10.0, 30.0} <= set(np.round(first, 9))
 
 
 def test_gap_zoom_figure_shows_the_worst_gaps_with_the_legend_outside():
