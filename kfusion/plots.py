@@ -611,8 +611,10 @@ def heatmap_figure(table: pd.DataFrame, *, rows: str, columns: str, value: str,
             ax.set_title(f"{quantity_label(str(facet))}: {tick_text(label)}", fontsize=9)
     plot_axes[0, 0].set_ylabel(quantity_label(rows))
     if image is not None:
-        bar = figure.colorbar(image, ax=list(plot_axes[0]), label=quantity_label(value))
-        if isinstance(norm, LogNorm):
+        log = isinstance(norm, LogNorm)  # say so: whether it is depends on the values
+        bar = figure.colorbar(image, ax=list(plot_axes[0]),
+                              label=quantity_label(value) + (", log scale" if log else ""))
+        if log:
             plain_log_ticks(bar.ax.yaxis)
         else:
             bar.ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))

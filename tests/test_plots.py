@@ -271,6 +271,7 @@ def test_heatmap_uses_a_log_scale_when_the_baseline_swamps_the_others():
                             value="rms_mm")
     image = figure.axes[0].images[0]
     assert isinstance(image.norm, LogNorm)
+    assert figure.axes[-1].get_ylabel() == "RMS gap error (mm), log scale"  # the colour bar
     assert figure.axes[0].get_ylabel() == "gap length (s)"
     assert [label.get_text() for label in figure.axes[0].get_yticklabels()] == ["0.1–0.3",
                                                                                 "0.6–1"]
