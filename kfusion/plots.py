@@ -11,7 +11,9 @@ Rules every figure follows, so that a reader sees at a glance what matters:
 * no estimate hides another: each method has its own colour, line style and marker, the widest
   line is drawn lowest;
 * colour scales are logarithmic where values span a decade or more, diverging around the
-  calibrated value for 3-sigma coverage, linear otherwise;
+  calibrated value for 3-sigma coverage, linear otherwise; a gap zoom's error axis is linear
+  near zero and logarithmic beyond where one method's error dwarfs the others'
+  (:func:`symlog_threshold`), and log axes read as plain numbers (:func:`plain_log_ticks`);
 * every axis says its unit (:func:`quantity_label`); a coverage band never leaves [0, 1].
 """
 
