@@ -11,7 +11,9 @@ Rules every figure follows, so that a reader sees at a glance what matters:
 * no estimate hides another: each method has its own colour, line style and marker, the widest
   line is drawn lowest;
 * colour scales are logarithmic where values span a decade or more, diverging around the
-  calibrated value for 3-sigma coverage, linear otherwise;
+  calibrated value for 3-sigma coverage, linear otherwise; a gap zoom's error axis is linear
+  near zero and logarithmic beyond where one method's error dwarfs the others'
+  (:func:`symlog_threshold`), and log axes read as plain numbers (:func:`plain_log_ticks`);
 * every axis says its unit (:func:`quantity_label`); a coverage band never leaves [0, 1].
 """
 
@@ -32,10 +34,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.axes import Axes  # noqa: E402
+from matplotlib.axis import Axis  # noqa: E402
 from matplotlib.colors import LogNorm, Normalize, TwoSlopeNorm  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
-from matplotlib.ticker import FuncFormatter  # noqa: E402
+from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from kfusion.conventions import LOST  # noqa: E402
@@ -111,6 +114,11 @@ def quantity_label(name: str) -> str:
     return name.replace("_", " ")
 
 
+def per_gap_label(metric: str) -> str:
+    """Label of a per-gap metric with its unit: ``max_mm`` -> "max error per gap (mm)"."""
+    return quantity_label(metric).replace("gap error", "error per gap")
+
+
 def tick_text(value: object) -> str:
     """A grid value as a tick label: a range ``[0.1, 0.3]`` (list or its JSON text) as
     ``0.1-0.3``, numbers with ``:g``."""
@@ -155,6 +163,14 @@ def colour_scale(values: NDArray[np.float64], value: str) -> tuple[Normalize, st
     return Normalize(vmin=low, vmax=high if high > low else low + 1.0), "viridis"
 
 
+def cell_text(value: float, *, fraction: bool) -> str:
+    """A heat-map cell's value: fractions with three decimals (0.9996 reads "1.000", not a
+    perfect "1"), others with three significant digits, thousands in full ("1,234")."""
+    if fraction:
+        return f"{value:.3f}"
+    return f"{value:,.0f}" if abs(value) >= 1000 else f"{value:.3g}"
+
+
 def text_colour(rgba: Sequence[float]) -> str:
     """Black or white, whichever reads better on a cell of colour ``rgba`` (luma 0.299 R +
     0.587 G + 0.114 B against 0.5)."""
@@ -187,6 +203,22 @@ def legend_outside(figure: Figure, handles: Sequence[Any], labels: Sequence[str]
     else:
         figure.legend(handles, labels, loc="outside right center", fontsize=8, title=title,
                       title_fontsize=8, frameon=False)
+
+
+def plain_log_ticks(axis: Axis) -> None:
+    """Label a log ``axis`` with plain numbers (0.1, 1, 10 rather than 10^-1, 10^0, 10^1); when
+    its view spans less than 3.5 decades, label the minor ticks at 2 and 5 times a power of ten
+    too (at most about ten labels), so that an axis never shows only two or three numbers."""
+    axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+
+    def minor(value: float, _: int) -> str:
+        low, high = sorted(axis.get_view_interval())
+        if value <= 0 or low <= 0 or high / low >= 10 ** 3.5:
+            return ""
+        mantissa = value / 10 ** np.floor(np.log10(value) + 1e-9)
+        return f"{value:g}" if min(abs(mantissa - 2), abs(mantissa - 5)) < 1e-6 else ""
+
+    axis.set_minor_formatter(FuncFormatter(minor))
 
 
 def _unique_handles(axes: Sequence[Axes]) -> tuple[list[Any], list[str]]:
@@ -328,9 +360,39 @@ def _draw_gap_errors(ax: Axes, t: NDArray[np.float64], reference: NDArray[np.flo
                 lw=min(style["lw"], 2.0), zorder=2 + index, label=name)
     ax.axhline(0, color="k", lw=0.6, zorder=1)
     ax.set_xlabel("t (s)", fontsize=8)
-    ax.set_ylabel(f"{AXIS_NAMES[axis]} error (mm)", fontsize=8)
+    inside = slice(max(start - 1, 0), min(stop + 1, len(t)))
+    threshold = symlog_threshold([
+        float(np.nanmax(np.abs(1000 * (np.asarray(result.position)[inside, axis]
+                                       - reference[inside, axis])), initial=0.0))
+        for result in results.values()])
+    if threshold is None:
+        ax.set_ylabel(f"{AXIS_NAMES[axis]} error (mm)", fontsize=8)
+    else:
+        ax.set_yscale("symlog", linthresh=threshold, linscale=1.0)
+        # ticks at 1 and 3 times each power of ten: a peak between decades stays readable
+        ax.yaxis.set_major_locator(SymmetricalLogLocator(linthresh=threshold, base=10,
+                                                         subs=[1.0, 3.0]))
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.set_ylabel(f"{AXIS_NAMES[axis]} error (mm),\nlog beyond ±{threshold:g}", fontsize=8)
     ax.tick_params(labelsize=8)
     ax.grid(alpha=0.3)
+
+
+def symlog_threshold(peaks: Sequence[float]) -> float | None:
+    """Linear range (mm) of a symmetric-log error axis, or None for a linear axis.
+
+    ``peaks`` are the methods' largest absolute errors (mm) in a panel. The second largest,
+    rounded up to a power of ten, ``L = 10 ** ceil(log10(second))``, bounds every method but
+    the worst. When the worst reaches ``10 L`` or more (the baseline's tens or hundreds of
+    millimetres against the Kalman filter's one), a linear axis would draw the others as a flat
+    line at zero; then the axis is linear on [-L, L] and logarithmic beyond, so that both are
+    readable and the mocap noise outside the gap looks as small as it is.
+    """
+    finite = sorted((p for p in peaks if np.isfinite(p) and p > 0), reverse=True)
+    if len(finite) < 2:
+        return None
+    linear = float(10 ** np.ceil(np.log10(finite[1]) - 1e-9))  # 1.0000001 mm: 1 mm
+    return linear if finite[0] >= 10 * linear else None
 
 
 def gap_duration(t: NDArray[np.float64], start: int, stop: int) -> float:
@@ -388,6 +450,8 @@ def trajectory_figure(
                         "axes fraction"), ha="center", va="bottom", fontsize=8, weight="bold")
         full.append(ax)
     full[-1].set_xlabel("t (s)")
+    if window is not None:
+        full[0].set_xlim(max(window[0], t[0]), min(window[1], t[-1]))
     zoom_axes = []
     for column, (start, stop, axis) in enumerate(zoomed):
         ax = figure.add_subplot(grid[len(axes), column])
@@ -506,8 +570,9 @@ def error_by_gap_length_figure(per_gap: pd.DataFrame, *, metric: str = "max_mm",
         ax.plot(centres, medians, color=style["color"], ls=style["ls"], lw=1.6, alpha=0.8,
                 zorder=1)
     ax.set_xlabel(quantity_label("duration_s"))
-    ax.set_ylabel(quantity_label(metric).replace("gap error", "error per gap"))
+    ax.set_ylabel(per_gap_label(metric))
     ax.set_yscale("log")
+    plain_log_ticks(ax.yaxis)
     ax.grid(alpha=0.3, which="both")
     methods = [str(method) for method in per_gap["method"].unique()] if len(per_gap) else []
     handles = [Line2D([], [], ls="none", marker=method_style(m, i)["marker"],
@@ -524,11 +589,14 @@ def heatmap_figure(table: pd.DataFrame, *, rows: str, columns: str, value: str,
                    facet: str | None = None) -> Figure:
     """Heat map of ``value`` (mean over repeats and any other column) on a ``rows`` x ``columns``
     grid of a sweep; with ``facet``, one panel per value of that column on a shared colour
-    scale (:func:`colour_scale`: log where values span decades, diverging for coverage).
-    ``table`` is a sweep's results table (one row per run)."""
+    scale (:func:`colour_scale`: log where values span decades, diverging for coverage). A
+    column without values stays, its cells marked "–" ("no bound" for the baseline's coverage),
+    so that every map of a sweep shows the same methods. ``table`` is a sweep's results
+    table (one row per run)."""
     panels = [(None, table)] if facet is None else list(table.groupby(facet, sort=True))
     grids = [(label, frame.pivot_table(index=rows, columns=columns, values=value,
-                                       aggfunc="mean")) for label, frame in panels]
+                                       aggfunc="mean", dropna=False))
+             for label, frame in panels]
     values = np.concatenate([grid.to_numpy(dtype=float).ravel() for _, grid in grids])
     norm, cmap = colour_scale(values, value)
     n_rows = max(grid.shape[0] for _, grid in grids)
@@ -538,15 +606,20 @@ def heatmap_figure(table: pd.DataFrame, *, rows: str, columns: str, value: str,
         figsize=(2.4 + (1.1 * n_columns + 0.6) * len(grids), 1.6 + 0.6 * n_rows))
     image = None
     for ax, (label, grid) in zip(plot_axes[0], grids, strict=True):
-        image = _draw_heatmap_panel(ax, grid, norm, cmap)
+        image = _draw_heatmap_panel(ax, grid, norm, cmap, fraction=is_fraction(value),
+                                    missing="no bound" if value.startswith("coverage") else "–")
         ax.set_xlabel(quantity_label(columns))
         if label is not None:
             ax.set_title(f"{quantity_label(str(facet))}: {tick_text(label)}", fontsize=9)
     plot_axes[0, 0].set_ylabel(quantity_label(rows))
     if image is not None:
-        bar = figure.colorbar(image, ax=list(plot_axes[0]), label=quantity_label(value))
-        bar.ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        bar.ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
+        log = isinstance(norm, LogNorm)  # say so: whether it is depends on the values
+        bar = figure.colorbar(image, ax=list(plot_axes[0]),
+                              label=quantity_label(value) + (", log scale" if log else ""))
+        if log:
+            plain_log_ticks(bar.ax.yaxis)
+        else:
+            bar.ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         if value.startswith("coverage"):
             bar.ax.axhline(NOMINAL_COVERAGE_3SIGMA, color="k", lw=1.0)
     if title:
@@ -554,8 +627,10 @@ def heatmap_figure(table: pd.DataFrame, *, rows: str, columns: str, value: str,
     return _save(figure, path)
 
 
-def _draw_heatmap_panel(ax: Axes, grid: pd.DataFrame, norm: Normalize, cmap: str) -> Any:
-    """One heat-map panel with each cell's value written in it."""
+def _draw_heatmap_panel(ax: Axes, grid: pd.DataFrame, norm: Normalize, cmap: str, *,
+                        fraction: bool, missing: str) -> Any:
+    """One heat-map panel with each cell's value written in it (:func:`cell_text`), ``missing``
+    in cells without one."""
     data = grid.to_numpy(dtype=float)
     image = ax.imshow(data, cmap=cmap, norm=norm, aspect="auto")
     ax.set_xticks(range(grid.shape[1]), [tick_text(c) for c in grid.columns], rotation=30,
@@ -566,8 +641,8 @@ def _draw_heatmap_panel(ax: Axes, grid: pd.DataFrame, norm: Normalize, cmap: str
         for j in range(grid.shape[1]):
             cell = data[i, j]
             colour = "k" if np.isnan(cell) else text_colour(colours(norm(cell)))
-            ax.text(j, i, "-" if np.isnan(cell) else f"{cell:.3g}", ha="center", va="center",
-                    fontsize=8, color=colour)
+            ax.text(j, i, missing if np.isnan(cell) else cell_text(cell, fraction=fraction),
+                    ha="center", va="center", fontsize=8, color=colour)
     return image
 
 
@@ -590,6 +665,9 @@ def sweep_lines_figure(table: pd.DataFrame, *, x: str, value: str, hue: str = "m
         if label is not None:
             ax.set_title(f"{quantity_label(str(facet))}: {tick_text(label)}", fontsize=9)
     plot_axes[0, 0].set_ylabel(quantity_label(value))
+    if fraction:  # after every panel is drawn: the shared limits then hold all their bands
+        plot_axes[0, 0].autoscale_view()
+        plot_axes[0, 0].set_ylim(max(plot_axes[0, 0].get_ylim()[0], 0.0), 1.01)
     legend_outside(figure, *_unique_handles(list(plot_axes[0])), title=quantity_label(hue))
     if title:
         figure.suptitle(title)
@@ -617,12 +695,9 @@ def _draw_lines_panel(ax: Axes, frame: pd.DataFrame, *, x: str, value: str, hue:
     if value.startswith("coverage"):
         ax.axhline(NOMINAL_COVERAGE_3SIGMA, color="k", lw=0.8, ls=":",
                    label=f"calibrated 3σ: {NOMINAL_COVERAGE_3SIGMA:.3f}")
-    if fraction:
-        ax.set_ylim(top=1.01)
     ax.set_xticks(list(positions.values()), [tick_text(key) for key in positions], rotation=20)
     ax.set_xlabel(quantity_label(x))
     if log:
         ax.set_yscale("log")
-        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
+        plain_log_ticks(ax.yaxis)
     ax.grid(alpha=0.3, which="both")

@@ -146,11 +146,11 @@ class ExperimentResult:
 
     def error_by_gap_figure(self, *, path: str | Path | None = None) -> Figure:
         """Per-gap error (``output.plots.metric``) against gap length, per method."""
-        from kfusion.plots import error_by_gap_length_figure
+        from kfusion.plots import error_by_gap_length_figure, per_gap_label
 
         metric = self.config.output.plots.metric
         return error_by_gap_length_figure(self.per_gap(), metric=metric,
-                                          title=f"{self.config.name}: {metric} per gap",
+                                          title=f"{self.config.name}: {per_gap_label(metric)}",
                                           path=path)
 
     def write(self, directory: str | Path) -> list[Path]:

@@ -3,6 +3,8 @@ log or diverging colour scales where they are needed, units on axes, coverage ba
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
@@ -14,6 +16,7 @@ from kfusion.plots import (
     NOMINAL_COVERAGE_3SIGMA,
     binned_median,
     busiest_window,
+    cell_text,
     clipped_band,
     colour_scale,
     error_by_gap_length_figure,
@@ -22,8 +25,10 @@ from kfusion.plots import (
     gap_zoom_figure,
     heatmap_figure,
     in_gaps,
+    plain_log_ticks,
     quantity_label,
     sweep_lines_figure,
+    symlog_threshold,
     text_colour,
     tick_text,
     trajectory_figure,
@@ -150,6 +155,28 @@ def test_labels_carry_units():
     assert tick_text("mpu9255") == "mpu9255"
 
 
+def visible_tick_labels(axis) -> list[str]:
+    low, high = sorted(axis.get_view_interval())
+    return [tick.label1.get_text() for tick in axis.get_major_ticks() + axis.get_minor_ticks()
+            if tick.label1.get_text() and low * 0.999 <= tick.get_loc() <= high * 1.001]
+
+
+def test_log_axes_read_as_plain_numbers_and_short_ones_label_2_and_5():
+    figure, ax = plt.subplots()
+    ax.set_yscale("log")
+    plain_log_ticks(ax.yaxis)
+    ax.set_ylim(1.0, 20.0)  # 1.3 decades: 1, 2, 5, 10, 20
+    figure.canvas.draw()
+    labels = visible_tick_labels(ax.yaxis)
+    assert sorted(labels, key=float) == ["1", "2", "5", "10", "20"]
+    ax.set_ylim(0.1, 1000.0)  # four decades: the decades alone
+    figure.canvas.draw()
+    labels = visible_tick_labels(ax.yaxis)
+    assert sorted(labels, key=float) == ["0.1", "1", "10", "100", "1000"]
+    assert cell_text(0.99962, fraction=True) == "1.000" and cell_text(932.04, fraction=False) == \
+        "932" and cell_text(1234.5, fraction=False) == "1,234"
+
+
 def test_small_helpers_by_hand():
     centres, medians = binned_median(np.array([0.0, 0.1, 0.2, 1.0]),
                                      np.array([1.0, 3.0, 2.0, 7.0]), bins=2)
@@ -191,6 +218,33 @@ def test_trajectory_window_keeps_only_gaps_inside_it_for_the_zoom():
                                window=(0.0, 4.0))
     titles = [ax.get_title() for ax in figure.axes if ax.get_title()]
     assert titles == ["A: gap at 1.00 s, 0.21 s long", "B: gap at 3.00 s, 0.31 s long"]
+    assert figure.axes[0].get_xlim() == (0.0, 4.0)  # the window, not the gaps' shading
+
+
+def test_symlog_threshold_only_when_one_method_dwarfs_the_rest():
+    # baseline 932 mm against kalman 0.45 mm: linear on [-1, 1] mm, log beyond
+    assert symlog_threshold([932.0, 0.45, 0.1]) == pytest.approx(1.0)
+    assert symlog_threshold([250.0, 2.5]) == pytest.approx(10.0)
+    assert symlog_threshold([31.0, 2.5, 0.3]) is None  # 31 mm is inside a decade of 10 mm
+    assert symlog_threshold([9.0, 1.0]) is None
+    assert symlog_threshold([40.0]) is None  # a single method
+    assert symlog_threshold([40.0, 0.0, np.nan]) is None  # nothing to read beside it
+
+
+def test_gap_zoom_turns_log_where_the_baseline_dwarfs_the_kalman_filter():
+    t, truth, measured, gap, results = synthetic()
+    baseline = results["baseline"]
+    results["baseline"] = replace(baseline, position=truth + 10 * (baseline.position - truth))
+    figure = gap_zoom_figure(t, measured, results, gap, truth=truth, axis=1, gaps=4)
+    # peaks (baseline, kalman) per gap, mm: 40/1, 200/2, 10/6, 90/0.5
+    scales = [(ax.get_yscale(), getattr(ax.yaxis.get_transform(), "linthresh", None))
+              for ax in figure.axes if ax.get_title()]
+    assert scales == [("symlog", 1.0), ("symlog", 10.0), ("linear", None), ("symlog", 1.0)]
+    assert all("log beyond ±" in ax.get_ylabel() for ax in figure.axes
+               if ax.get_yscale() == "symlog")
+    # a 40 mm peak reads between labelled ticks at 30 and the top, not in an unlabelled decade
+    first = figure.axes[0].yaxis.get_major_locator().tick_values(-1.0, 40.0)
+    assert {0.0, 1.0, 3.0, 10.0, 30.0} <= set(np.round(first, 9))
 
 
 def test_gap_zoom_figure_shows_the_worst_gaps_with_the_legend_outside():
@@ -217,12 +271,18 @@ def test_heatmap_uses_a_log_scale_when_the_baseline_swamps_the_others():
                             value="rms_mm")
     image = figure.axes[0].images[0]
     assert isinstance(image.norm, LogNorm)
+    assert figure.axes[-1].get_ylabel() == "RMS gap error (mm), log scale"  # the colour bar
     assert figure.axes[0].get_ylabel() == "gap length (s)"
     assert [label.get_text() for label in figure.axes[0].get_yticklabels()] == ["0.1–0.3",
                                                                                 "0.6–1"]
     figure = heatmap_figure(sweep_table(), rows="data.occlusions.gap_range", columns="method",
                             value="coverage_3sigma")
     assert isinstance(figure.axes[0].images[0].norm, TwoSlopeNorm)
+    # the baseline gives no bound: its column stays, marked, beside the others
+    ax = figure.axes[0]
+    assert [label.get_text() for label in ax.get_xticklabels()] == ["baseline", "kalman",
+                                                                    "smoother"]
+    assert [text.get_text() for text in ax.texts].count("no bound") == 2
 
 
 def test_sweep_lines_keep_coverage_bands_below_one_and_the_legend_outside():
@@ -238,4 +298,20 @@ def test_sweep_lines_keep_coverage_bands_below_one_and_the_legend_outside():
     assert not legend_overlaps_any_axes(figure)
     figure = sweep_lines_figure(sweep_table(), x="data.occlusions.gap_range", value="rms_mm")
     assert figure.axes[0].get_yscale() == "log"
+    assert not legend_overlaps_any_axes(figure)
+
+
+def test_sweep_line_panels_share_limits_that_hold_every_panels_band():
+    table = sweep_table()
+    table["data.imu"] = "mpu9255"
+    wide = table[table["method"] == "kalman"].assign(**{"data.imu": "um7"})
+    wide["coverage_3sigma"] = [0.90, 0.96, 0.90, 0.96]  # mean 0.93, std 0.042 per gap range
+    figure = sweep_lines_figure(pd.concat([table, wide]), x="data.occlusions.gap_range",
+                                value="coverage_3sigma", facet="data.imu", log=False)
+    bottoms = [collection.get_paths()[0].vertices[:, 1].min() for ax in figure.axes
+               for collection in ax.collections]
+    low, high = figure.axes[0].get_ylim()
+    assert min(bottoms) == pytest.approx(0.93 - 0.06 / np.sqrt(2))
+    assert low <= min(bottoms) and high == pytest.approx(1.01)
+    assert figure.axes[1].get_ylim() == (low, high)
     assert not legend_overlaps_any_axes(figure)
