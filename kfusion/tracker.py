@@ -103,7 +103,7 @@ from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, sho
 from kfusion.kalman.filter import ACCEPTED, GATED, OCCLUDED, REACQUIRED
 from kfusion.monitor import MonitorReport
 from kfusion.profiles import ImuProfile, imu_profile
-from kfusion.recording import MAX_CLOCK_DRIFT_PPM, RecordingInfo
+from kfusion.recording import MAX_CLOCK_DRIFT_PPM, RecordingInfo, parse_info
 from kfusion.streamhealth import (
     DEFAULT_MAX_TIME_JUMP_S,
     IMPLAUSIBLE,
@@ -817,9 +817,10 @@ class Tracker:
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any], *, source: str = "mapping") -> Tracker:
         """A tracker from a plain mapping with keys ``imu_to_body``, ``gravity`` (required),
-        ``method``, ``imu``, ``lever_arm``, ``parameters`` (the method's fields) and
-        ``tracker`` (:class:`TrackerOptions` fields). ValueError names ``source`` and any
-        unknown key."""
+        ``method``, ``imu``, ``lever_arm``, ``parameters`` (the method's fields),
+        ``tracker`` (:class:`TrackerOptions` fields) and ``recording.yaml``'s clock model and
+        measured noise (``imu_time_offset``, ``imu_clock_drift_ppm``, ``imu_noise``: they
+        mean what they mean there). ValueError names ``source`` and any unknown key."""
         if not isinstance(mapping, Mapping):
             raise ValueError(f"{source}: expected a mapping with keys {list(CONFIG_KEYS)}, got "
                              f"{type(mapping).__name__}")
@@ -844,13 +845,21 @@ class Tracker:
         imu = mapping.get("imu")
         profile = section("imu", lambda: imu_profile(imu or "mpu9255")) if not isinstance(
             imu, ImuProfile) else imu
+        # the clock and noise keys as recording.yaml defines them, read by its own parser
+        info = parse_info({key: mapping[key] for key in
+                           ("imu_time_offset", "imu_clock_drift_ppm", "imu_noise")
+                           if key in mapping}, source, require_mount=False)
+        if info.imu_noise is not None:
+            profile = dataclasses.replace(profile, **info.imu_noise.overrides())
         params = section("parameters",
                          lambda: _parameters(method, mapping.get("parameters"), profile))
         options = section("tracker", lambda: TrackerOptions.from_mapping(
             mapping.get("tracker") or {}))
         try:
             return cls(mapping["imu_to_body"], mapping["gravity"], method=method, imu=profile,
-                       params=params, lever_arm=mapping.get("lever_arm"), options=options)
+                       params=params, lever_arm=mapping.get("lever_arm"), options=options,
+                       imu_time_offset=info.imu_time_offset,
+                       imu_clock_drift_ppm=info.imu_clock_drift_ppm)
         except ValueError as error:
             raise ValueError(f"{source}: {error}") from None
 
@@ -1331,7 +1340,7 @@ class Tracker:
 
 
 CONFIG_KEYS: Final = ("imu_to_body", "gravity", "method", "imu", "lever_arm", "parameters",
-                      "tracker")
+                      "tracker", "imu_time_offset", "imu_clock_drift_ppm", "imu_noise")
 """Keys of a tracker YAML file (:meth:`Tracker.from_yaml`)."""
 
 

@@ -529,6 +529,28 @@ def test_from_yaml_reads_a_recordings_own_metadata_file():
 
     tracker = Tracker.from_yaml(broad_excerpt() / "recording.yaml")
     assert tracker.imu_profile.name == "broad" and tracker.method == "kalman"
+    assert tracker.imu_clock == (-0.003, 0.0)  # BROAD's IMU lag, from the file
+
+
+def test_from_yaml_takes_a_calibrated_files_clock_and_noise(tmp_path: Path):
+    # what kfusion calibrate writes: the clock model and measured noise, read as the recording
+    # readers read them (from_recording_info), never refused as unknown keys
+    from kfusion.recording import read_info
+
+    path = tmp_path / "recording.yaml"
+    path.write_text("imu_to_body: [1, 0, 0, 0]\ngravity: [0, -9.81, 0]\nname: take 3\n"
+                    "imu: mpu9255\nimu_time_offset: 1.25\nimu_clock_drift_ppm: -40.0\n"
+                    "imu_noise: {accelerometer_noise_density: 0.004}\n")
+    tracker = Tracker.from_yaml(path)
+    reference = Tracker.from_recording_info(read_info(path))
+    assert tracker.imu_clock == reference.imu_clock == (1.25, -40.0)
+    assert tracker.imu_profile == reference.imu_profile
+    assert tracker.imu_profile.accelerometer_noise_density == 0.004
+    assert tracker.params == reference.params
+    path.write_text("imu_to_body: [1, 0, 0, 0]\ngravity: [0, -9.81, 0]\n"
+                    "imu_noise: {accelerometer_noise_density: -1}\n")
+    with pytest.raises(ValueError, match=r"recording.yaml.*imu_noise.accelerometer_noise_density"):
+        Tracker.from_yaml(path)
 
 
 @pytest.mark.parametrize(("text", "match"), [

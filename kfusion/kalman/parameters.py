@@ -27,18 +27,6 @@ DEFAULT_IMU_PROFILE: Final = "mpu9255"
 DEFAULT_MOCAP_PROFILE: Final = OPTITRACK.name
 """Mocap profile used when the caller names none."""
 
-IMU_LATENCY_S: Final[dict[str, float]] = {"broad": 0.003}
-"""Measured IMU latency against the mocap clock, s, by IMU profile name (0 when absent; the
-simulator's sensors have none).
-
-BROAD: the mean NIS of every mocap fix (no artificial gaps, mocap every 3rd sample, gating off),
-geometric mean over the seven trials, was 0.372 / 0.252 / 0.221 / 0.221 / 0.231 / 0.295 at a
-latency of 0 / 1.5 / 2.5 / 3.0 / 3.5 / 4.5 ms; five trials have their minimum at 2.5-3.0 ms.
-That is about one sample at 285.7 Hz (the README: the clocks agree within one sample). It is a
-property of the sensor set-up, like its noise, and belongs in :class:`kfusion.profiles.
-ImuProfile`; it lives here until the profile has a field for it."""
-
-
 @dataclass(frozen=True)
 class KalmanParameters:
     """Noise model and behaviour of :class:`kfusion.kalman.KalmanFusion`.
@@ -65,7 +53,10 @@ class KalmanParameters:
             give one: the filter then estimates it (12 states). 0 ignores an unknown lever arm
             (9 states, the IMU point taken as the rigid-body point).
         imu_latency_s: how late the IMU timestamps are against the mocap clock, s (a sample
-            stamped t describes the motion at ``t - imu_latency_s``). Finite.
+            stamped t describes the motion at ``t - imu_latency_s``), on top of the
+            recording's clock model. Finite; default 0: a recording's clock offset belongs in
+            ``recording.yaml`` (``imu_time_offset``, which ``kfusion calibrate`` measures and
+            the BROAD reader sets), so that it is applied once.
         accelerometer_range: full scale, m/s^2, > 0 (``math.inf``: never saturates). A sample
             with an axis at 99.9 % of it or beyond is flagged as saturated and its noise inflated.
         gyroscope_range: full scale, rad/s, > 0, used the same way for the orientation.
@@ -195,7 +186,6 @@ class KalmanParameters:
                                                     imu_object.accelerometer_cross_axis),
             "gyroscope_scale_error": math.hypot(imu_object.gyroscope_scale_error,
                                                 imu_object.gyroscope_cross_axis),
-            "imu_latency_s": IMU_LATENCY_S.get(imu_object.name, 0.0),
         }
         values.update(overrides)
         return cls(**values)
