@@ -247,9 +247,17 @@ def quaternion_log(quaternion: Quaternion) -> Vector:
 
 
 def rotation_angle(first: ArrayLike, second: ArrayLike) -> float:
-    """Angle of the rotation between two unit quaternions (4,), rad: ``2 acos |<q1, q2>|``."""
-    dot = abs(float(np.dot(np.asarray(first, float), np.asarray(second, float))))
-    return 2.0 * float(np.arccos(min(1.0, dot)))
+    """Angle of the rotation between two unit quaternions (4,), rad, in [0, pi]::
+
+        [w, v] = first* ⊗ second,  angle = 2 atan2(|v|, |w|)
+
+    (well conditioned at small angles, where ``2 acos |<q1, q2>|`` loses half the digits)."""
+    a = np.asarray(first, dtype=float)
+    b = np.asarray(second, dtype=float)
+    w, x, y, z = quaternion_product(conjugate((float(a[0]), float(a[1]), float(a[2]),
+                                               float(a[3]))),
+                                    (float(b[0]), float(b[1]), float(b[2]), float(b[3])))
+    return 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
 
 
 def quaternion_step(quaternion: Quaternion, angular_rate: Vector, dt: float) -> Quaternion:
