@@ -5,7 +5,7 @@ A *run config* describes one experiment (``kfusion run CONFIG``)::
     name: arm_lift_type1            # default: the file name without .yaml
     description: ...
     data:                           # what to track and how its gaps are scored
-      kind: simulate                # simulate | broad | folder
+      kind: simulate                # simulate | broad | folder | combined (labelled parts)
       scenario: arm_lift
       imu: mpu9255
       occlusions: {gap_range: [0.1, 0.3], placement: mid_motion}

@@ -32,7 +32,7 @@ from kfusion.kalman import (
 )
 from kfusion.kalman.orientation import OrientationTracker
 from kfusion.kalman.reference import reference_filter
-from kfusion.methods import track_recording
+from kfusion.methods import track_with_method
 from kfusion.profiles import MPU9255, OPTITRACK, UM7
 from kfusion.recording import ImuSamples, MocapFrames, Recording, RecordingInfo
 from kfusion.simulate import OcclusionSpec, simulate
@@ -557,7 +557,7 @@ def test_filter_recording_takes_the_profile_from_the_recording_and_overrides():
     assert default.params == KalmanParameters.from_profiles("mpu9255")
     um7 = dataclasses.replace(recording, info=dataclasses.replace(recording.info, imu="um7"))
     assert run_filter(um7).params == KalmanParameters.from_profiles("um7")
-    result = track_recording(recording, "kalman", max_bridge_s=0.25)
+    result = track_with_method(recording, "kalman", max_bridge_s=0.25)
     assert result.method == "kalman" and len(result) == len(recording.mocap)
     np.testing.assert_array_equal(result.t, recording.mocap.t)
     with pytest.raises(ValueError, match="unknown override 'bridge'"):

@@ -186,10 +186,6 @@ class KnotList:
     def last_time(self) -> float:
         return self.times[-1]
 
-    @property
-    def last_value(self) -> Array:
-        return self.values[-1]
-
     def hold_until(self, time: float) -> None:
         """Stay at rest at the last value until ``time`` (no knot if ``time`` is not later)."""
         if time > self.times[-1]:
