@@ -366,6 +366,8 @@ DataConfig = Annotated[SimulateData | BroadData | FolderData | CombinedData,
 DATA_KINDS = tuple(sorted(typing.get_args(model.model_fields["kind"].annotation)[0]
                           for model in (SimulateData, BroadData, FolderData, CombinedData)))
 """The data section's ``kind`` values."""
+PART_KINDS = tuple(kind for kind in DATA_KINDS if kind != "combined")
+"""The ``kind`` values of a combined section's parts (no nesting)."""
 
 
 class PlotsConfig(_Strict):
@@ -577,7 +579,8 @@ def _issues_from_validation(error: ValidationError, model: type[BaseModel], raw:
         elif kind in ("union_tag_invalid", "union_tag_not_found"):
             issues.append(ConfigIssue(
                 _format_path([*kept, "kind"]),
-                f"expected one of {list(DATA_KINDS)}, got {short_repr(node.get('kind'), 40)}"
+                f"expected one of {list(PART_KINDS if 'parts' in kept else DATA_KINDS)}, "
+                f"got {short_repr(node.get('kind'), 40)}"
                 if isinstance(node, Mapping)
                 else f"expected a mapping with a kind, got {short_repr(node)}"))
         else:

@@ -276,6 +276,9 @@ def test_gap_seeding_per_recording_or_shared():
      r"got 'optical'"),
     ({"data": {"kind": "combined", "parts": {"a": {**SIMULATED, "imux": "um7"}}}},
      r"data\.parts\.a\.imux: unknown key; expected one of \['duration', 'imu', 'kind', "),
+    ({"data": {"kind": "combined", "parts": {"a": {"kind": "combined", "parts": {}}}}},
+     r"data\.parts\.a\.kind: expected one of \['broad', 'folder', 'simulate'\], "
+     r"got 'combined'"),
     ({"data": {"kind": "combined", "parts": {"a/b": SIMULATED}}},
      r"data\.parts: expected a plain name"),
     ({"data": {"kind": "combined", "parts": {}}}, r"data\.parts: .*at least 1 item"),
