@@ -10,60 +10,52 @@ Data sets:
 For each method: RMS and maximum gap error (mm), the ratio baseline RMS / method RMS, the
 fraction of gap samples inside 3 sigma on every axis, IMU samples processed per second, and the
 slowest single-trial tracking time. Run: ``python benchmarks/accuracy.py [--seeds 5] [--quick]``.
+
+The data sets are the configs ``configs/accuracy_*.yaml`` (one per table), built by
+:mod:`kfusion.config` as for ``kfusion run``; ``kfusion run configs/accuracy_<...>.yaml``
+reproduces a table's accuracy columns.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 
-import numpy as np
 import pandas as pd
-from tqdm import tqdm
 
-from kfusion.datasets import broad_trials
-from kfusion.evaluate import cut_gaps
-from kfusion.experiment import MethodRun, ScoredRecording, format_table, run_method, summary_table
-from kfusion.methods import METHODS
-from kfusion.readers.broad import read_broad
-from kfusion.simulate import OcclusionSpec, simulate
+from kfusion.config import BroadData, RunConfig, find_config, load_run_config
+from kfusion.experiment import format_table
+from kfusion.sweep import run_experiment
 
-GAP_RANGES = {"0.1-0.3 s": (0.1, 0.3), "0.3-1.0 s": (0.3, 1.0)}
-SIMULATED = (("arm_lift", "mid_motion"), ("arm_lift", "direction_change"),
-             ("circle", "random"), ("pick_tool", "random"))
-
-
-def simulated_sets(seeds: int, gap_range: tuple[float, float]) -> list[ScoredRecording]:
-    sets = []
-    for scenario, placement in SIMULATED:
-        for seed in range(seeds):
-            simulation = simulate(scenario, seed=seed, imu="mpu9255",
-                                  occlusions=OcclusionSpec(gap_range=gap_range,
-                                                           placement=placement))
-            sets.append(ScoredRecording(f"{scenario}/{placement}/{seed}", simulation.recording,
-                                        simulation.truth.position, simulation.truth.occluded))
-    return sets
+TABLES = {
+    "0.1-0.3 s": ("accuracy_simulated_short_gaps", "accuracy_broad_short_gaps"),
+    "0.3-1.0 s": ("accuracy_simulated_long_gaps", "accuracy_broad_long_gaps"),
+}
+"""Gap lengths -> the configs (``configs/<name>.yaml``) of the simulated and BROAD tables; each
+table is also ``kfusion run configs/<name>.yaml``."""
 
 
-def broad_sets(gap_range: tuple[float, float], trials: int | None) -> list[ScoredRecording]:
-    sets = []
-    for path in broad_trials()[:trials]:
-        recording = read_broad(path, mocap_step=3)
-        gapped = cut_gaps(recording, rng=np.random.default_rng(0), gap_range=gap_range)
-        sets.append(ScoredRecording(path.stem, gapped.recording, gapped.truth_position,
-                                    gapped.gap_mask))
-    return sets
+def limited(config: RunConfig, seeds: int, trials: int | None) -> RunConfig:
+    """``config`` with ``seeds`` simulation seeds (0..seeds-1; BROAD configs keep theirs, one
+    gap pattern) and, on BROAD, its first ``trials`` trials (None: all)."""
+    if isinstance(config.data, BroadData):
+        if trials is None:
+            return config
+        keys = [path.stem for path in config.data.trial_paths()[:trials]]
+        return config.model_copy(update={"data": config.data.model_copy(
+            update={"trials": keys})})
+    return config.model_copy(update={"seeds": list(range(seeds))})
 
 
-def evaluate(sets: list[ScoredRecording], label: str) -> tuple[pd.DataFrame, list[MethodRun]]:
-    runs = [run_method(scored, method)
-            for scored in tqdm(sets, desc=label, leave=False, file=sys.stderr)
-            for method in METHODS]
-    table = summary_table(runs)
-    slowest = {m: max(r.seconds for r in runs if r.method == m) for m in METHODS}
-    table["slowest_run_s"] = pd.Series(slowest)
-    return table, runs
+def evaluate(config: RunConfig) -> tuple[pd.DataFrame, int]:
+    """Summary table of ``config`` (:func:`kfusion.sweep.run_experiment`, as ``kfusion run``)
+    plus the slowest single run per method; and the number of recordings."""
+    result = run_experiment(config, progress=True)
+    table = result.summary()
+    table["slowest_run_s"] = pd.Series({
+        method: max(run.seconds for run in result.all_runs if run.method == method)
+        for method in table.index})
+    return table, len(result.recordings)
 
 
 def main() -> int:
@@ -76,14 +68,15 @@ def main() -> int:
     start = time.perf_counter()
     columns = ["samples", "rms_mm", "max_mm", "baseline_over_method", "coverage_3sigma",
                "lost_fraction", "imu_per_second", "slowest_run_s"]
-    for gap_label, gap_range in GAP_RANGES.items():
+    for gap_label, (simulated, broad) in TABLES.items():
         data = {
-            f"simulated paper scenarios, mpu9255, {seeds} seeds": simulated_sets(seeds, gap_range),
-            "BROAD trials, mocap every 3rd sample": broad_sets(gap_range, trials),
+            f"simulated paper scenarios, mpu9255, {seeds} seeds": simulated,
+            "BROAD trials, mocap every 3rd sample": broad,
         }
-        for data_label, sets in data.items():
-            table, _ = evaluate(sets, f"{data_label}, {gap_label}")
-            print(f"\n### {data_label}, gaps {gap_label} ({len(sets)} recordings)\n")
+        for data_label, name in data.items():
+            config = limited(load_run_config(find_config(name)), seeds, trials)
+            table, count = evaluate(config)
+            print(f"\n### {data_label}, gaps {gap_label} ({count} recordings)\n")
             print("```")
             print(format_table(table[[c for c in columns if c in table.columns]]))
             print("```")

@@ -5,7 +5,7 @@ A *run config* describes one experiment (``kfusion run CONFIG``)::
     name: arm_lift_type1            # default: the file name without .yaml
     description: ...
     data:                           # what to track and how its gaps are scored
-      kind: simulate                # simulate | broad | folder
+      kind: simulate                # simulate | broad | folder | combined (labelled parts)
       scenario: arm_lift
       imu: mpu9255
       occlusions: {gap_range: [0.1, 0.3], placement: mid_motion}
@@ -160,6 +160,10 @@ class GapsConfig(_Strict):
                            description="visible time before each gap, s")
     count: int | None = Field(default=None, ge=1,
                               description="maximum number of gaps (null: all)")
+    seeding: Literal["per_recording", "shared"] = Field(
+        default="per_recording", description="gap patterns: per_recording draws each "
+        "recording's from (seed, its name), so it does not depend on the other recordings; "
+        "shared draws every recording's from the seed alone (as benchmarks/accuracy.py does)")
 
     _check_range = field_validator("gap_range")(_gap_range_ok)
 
@@ -217,23 +221,13 @@ class SimulateData(_Strict):
 
         Quick mode caps the duration at :data:`QUICK_SIMULATION_S`, or keeps the configured one
         when no gap of the requested placement fits in the shorter motion."""
-        from kfusion.simulate import OcclusionSpec, simulate
-
-        occlusions = OcclusionSpec(gap_range=self.occlusions.gap_range,
-                                   placement=self.occlusions.placement,
-                                   spacing=self.occlusions.spacing, count=self.occlusions.count)
-        simulation = None
         if quick and (self.duration is None or self.duration > QUICK_SIMULATION_S):
             with contextlib.suppress(ValueError):
-                simulation = simulate(self.scenario, seed=seed, imu=self.imu,
-                                      occlusions=occlusions, duration=QUICK_SIMULATION_S)
-        if simulation is None:
-            simulation = simulate(self.scenario, seed=seed, imu=self.imu, occlusions=occlusions,
-                                  duration=self.duration)
-        return [ScoredRecording(name=f"{self.scenario}/{self.imu}/seed{seed}",
-                                recording=simulation.recording,
-                                truth_position=simulation.truth.position,
-                                gap_mask=simulation.truth.occluded)]
+                return [simulated_recording(self.scenario, seed, imu=self.imu,
+                                            occlusions=self.occlusions,
+                                            duration=QUICK_SIMULATION_S)]
+        return [simulated_recording(self.scenario, seed, imu=self.imu,
+                                    occlusions=self.occlusions, duration=self.duration)]
 
 
 def _trials_all_or_list(value: Any) -> Any:
@@ -307,7 +301,7 @@ class BroadData(_Strict):
             recording = read_broad(path, mocap_step=self.mocap_step)
             if quick:
                 recording = first_seconds(recording, QUICK_RECORDING_S)
-            scored.append(_cut(path.stem, recording, self.gaps, seed))
+            scored.append(recording_with_gaps(path.stem, recording, self.gaps, seed))
         return scored
 
 
@@ -337,14 +331,43 @@ class FolderData(_Strict):
             recording = read_recording(folder, zero_position_means_occluded=self.zeros_occluded)
             if quick:
                 recording = first_seconds(recording, QUICK_RECORDING_S)
-            scored.append(_cut(Path(folder).name, recording, self.gaps, seed))
+            scored.append(recording_with_gaps(Path(folder).name, recording, self.gaps, seed))
         return scored
 
 
-DataConfig = Annotated[SimulateData | BroadData | FolderData, Field(discriminator="kind")]
+PartConfig = Annotated[SimulateData | BroadData | FolderData, Field(discriminator="kind")]
+
+
+class CombinedData(_Strict):
+    """Several data sections scored together, e.g. every simulated paper scenario in one table
+    (the README's accuracy tables). Each part is labelled; its recordings are named
+    ``<label>/<name>``."""
+
+    kind: Literal["combined"]
+    parts: dict[str, PartConfig] = Field(min_length=1, description="label -> data section "
+                                         "(simulate, broad or folder)")
+
+    @field_validator("parts")
+    @classmethod
+    def _plain_labels(cls, value: dict[str, Any]) -> dict[str, Any]:
+        for label in value:
+            plain_name(label)
+        return value
+
+    def scored_recordings(self, seed: int, *, quick: bool = False) -> list[ScoredRecording]:
+        """Every part's recordings for ``seed``, in the order of ``parts``."""
+        return [dataclasses.replace(scored, name=f"{label}/{scored.name}")
+                for label, part in self.parts.items()
+                for scored in part.scored_recordings(seed, quick=quick)]
+
+
+DataConfig = Annotated[SimulateData | BroadData | FolderData | CombinedData,
+                       Field(discriminator="kind")]
 DATA_KINDS = tuple(sorted(typing.get_args(model.model_fields["kind"].annotation)[0]
-                          for model in (SimulateData, BroadData, FolderData)))
+                          for model in (SimulateData, BroadData, FolderData, CombinedData)))
 """The data section's ``kind`` values."""
+PART_KINDS = tuple(kind for kind in DATA_KINDS if kind != "combined")
+"""The ``kind`` values of a combined section's parts (no nesting)."""
 
 
 class PlotsConfig(_Strict):
@@ -496,13 +519,21 @@ def _model_at(model: type[BaseModel], raw: Any, parts: Sequence[str | int]
     current: Any = model
     node = raw
     for part in parts:
-        if not (isinstance(current, type) and issubclass(current, BaseModel)):
+        if not (isinstance(current, tuple)
+                or (isinstance(current, type) and issubclass(current, BaseModel))):
             return None
-        field = current.model_fields.get(str(part))
-        if field is None:
-            return None
+        if isinstance(current, tuple):  # a mapping of models: ``part`` is one of its keys
+            annotation, current = current[0], None
+        else:
+            field = current.model_fields.get(str(part))
+            if field is None:
+                return None
+            annotation = field.annotation
         node = node.get(part) if isinstance(node, Mapping) else None
-        candidates = [kind for kind in _unwrap(field.annotation)
+        if typing.get_origin(annotation) is dict:
+            current = (typing.get_args(annotation)[1],)
+            continue
+        candidates = [kind for kind in _unwrap(annotation)
                       if isinstance(kind, type) and issubclass(kind, BaseModel)]
         if len(candidates) > 1 and isinstance(node, Mapping):
             tagged = [kind for kind in candidates if "kind" in kind.model_fields
@@ -548,7 +579,8 @@ def _issues_from_validation(error: ValidationError, model: type[BaseModel], raw:
         elif kind in ("union_tag_invalid", "union_tag_not_found"):
             issues.append(ConfigIssue(
                 _format_path([*kept, "kind"]),
-                f"expected one of {list(DATA_KINDS)}, got {short_repr(node.get('kind'), 40)}"
+                f"expected one of {list(PART_KINDS if 'parts' in kept else DATA_KINDS)}, "
+                f"got {short_repr(node.get('kind'), 40)}"
                 if isinstance(node, Mapping)
                 else f"expected a mapping with a kind, got {short_repr(node)}"))
         else:
@@ -940,12 +972,39 @@ def first_seconds(recording: Recording, seconds: float) -> Recording:
     return dataclasses.replace(recording, imu=imu, mocap=mocap)
 
 
-def _cut(name: str, recording: Recording, gaps: GapsConfig, seed: int) -> ScoredRecording:
-    """Cut gaps with a generator seeded by (seed, crc32(name)): each recording gets its own
-    pattern, reproducible whatever the other recordings are."""
+def simulated_recording(scenario: str, seed: int, *, imu: str = "mpu9255",
+                        occlusions: OcclusionsConfig | None = None,
+                        duration: float | None = None) -> ScoredRecording:
+    """A simulated recording scored against the simulator's truth: the one builder of simulated
+    data sets (configs, benchmarks, tests, ``kfusion demo``). Named
+    ``<scenario>/<imu>/seed<seed>``; ``duration`` s (None: the scenario's own length)."""
+    from kfusion.simulate import OcclusionSpec, simulate
+
+    gaps = OcclusionsConfig() if occlusions is None else occlusions
+    simulation = simulate(scenario, seed=seed, imu=imu, duration=duration,
+                          occlusions=OcclusionSpec(gap_range=gaps.gap_range,
+                                                   placement=gaps.placement,
+                                                   spacing=gaps.spacing, count=gaps.count))
+    return ScoredRecording(name=f"{scenario}/{imu}/seed{seed}",
+                           recording=simulation.recording,
+                           truth_position=simulation.truth.position,
+                           gap_mask=simulation.truth.occluded)
+
+
+def recording_with_gaps(name: str, recording: Recording, gaps: GapsConfig | None = None,
+                        seed: int = 0) -> ScoredRecording:
+    """A real recording with artificial gaps cut where its mocap is valid, scored against the
+    hidden mocap (:func:`kfusion.evaluate.cut_gaps`): the one builder of real data sets. Named
+    ``<name>/seed<seed>``.
+
+    The gap pattern comes from a generator seeded by ``(seed, crc32(name))`` (each recording
+    its own pattern, reproducible whatever the other recordings are), or by ``seed`` alone with
+    ``gaps.seeding == "shared"``."""
     from kfusion.evaluate import cut_gaps
 
-    rng = np.random.default_rng([seed, zlib.crc32(name.encode())])
+    gaps = GapsConfig() if gaps is None else gaps
+    rng = (np.random.default_rng(seed) if gaps.seeding == "shared"
+           else np.random.default_rng([seed, zlib.crc32(name.encode())]))
     gapped = cut_gaps(recording, rng=rng, gap_range=gaps.gap_range, spacing=gaps.spacing,
                       count=gaps.count)
     return ScoredRecording(name=f"{name}/seed{seed}", recording=gapped.recording,

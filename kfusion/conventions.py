@@ -31,7 +31,8 @@ Track output status
 
 from __future__ import annotations
 
-from typing import Final
+import math
+from typing import Any, Final
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -94,34 +95,75 @@ def rotation_from_wxyz(quaternion: ArrayLike) -> Rotation:
     return Rotation.from_quat(as_wxyz(quaternion), scalar_first=True)
 
 
+def canonical_wxyz(quaternion: ArrayLike) -> NDArray[np.float64]:
+    """The same rotation(s) with ``w >= 0`` (``q`` and ``-q`` are one rotation); shape as given,
+    (4,) or (n, 4)."""
+    array = np.asarray(quaternion, dtype=float)
+    return np.where(array[..., :1] < 0, -array, array)
+
+
 def wxyz_from_rotation(rotation: Rotation) -> NDArray[np.float64]:
     """Scalar-first quaternion(s) ``[w, x, y, z]`` with w >= 0, shape (4,) or (n, 4)."""
-    quaternion = rotation.as_quat(scalar_first=True)
-    sign = np.where(quaternion[..., :1] < 0, -1.0, 1.0)
-    return quaternion * sign
+    return canonical_wxyz(rotation.as_quat(scalar_first=True))
 
 
-def matrix_from_wxyz(quaternion: ArrayLike) -> NDArray[np.float64]:
-    """Rotation matrix of a unit quaternion ``[w, x, y, z]``; shape (3, 3) or (n, 3, 3).
+# --------------------------------------------------------------------------------------------
+# Quaternion algebra: the one implementation of each operation.
+#
+# Each formula is written once, on components, and serves two forms: arrays of rows (numpy,
+# broadcasting; the simulator, calibration, files) and single quaternions as tuples of Python
+# floats (the filters, at IMU rate, where one numpy call costs more than the arithmetic). The
+# exponential map is the exception: its small-angle branch is an ``if`` on floats and a
+# ``np.where`` on rows, so it has a per-sample and a row form, tested against each other.
+# --------------------------------------------------------------------------------------------
 
-    Plain numpy (no scipy object), because the filters call it at IMU rate:
+Quaternion = tuple[float, float, float, float]
+"""One unit quaternion ``(w, x, y, z)`` as Python floats."""
+Vector = tuple[float, float, float]
+"""One 3-vector as Python floats."""
+
+SMALL_ANGLE: Final = 1e-12
+"""rad: below this rotation angle the exponential map uses its first-order form."""
+
+
+def _hamilton(w1: Any, x1: Any, y1: Any, z1: Any,
+              w2: Any, x2: Any, y2: Any, z2: Any) -> tuple[Any, Any, Any, Any]:
+    """Components of the Hamilton product (floats or arrays)."""
+    return (
+        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+    )
+
+
+def _matrix_entries(w: Any, x: Any, y: Any, z: Any) -> tuple[Any, ...]:
+    """The nine entries, row by row, of the rotation matrix of a unit quaternion::
 
         R = [[1-2(y²+z²), 2(xy-wz),   2(xz+wy)],
              [2(xy+wz),   1-2(x²+z²), 2(yz-wx)],
              [2(xz-wy),   2(yz+wx),   1-2(x²+y²)]]
     """
+    return (
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    )
+
+
+def matrix_from_wxyz(quaternion: ArrayLike) -> NDArray[np.float64]:
+    """Rotation matrix of quaternion(s) ``[w, x, y, z]`` (normalised first); shape (3, 3) or
+    (n, 3, 3). Entries: :func:`_matrix_entries`."""
     q = np.asarray(quaternion, dtype=float)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    matrix = np.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        axis=-1,
-    )
+    matrix = np.stack(_matrix_entries(q[..., 0], q[..., 1], q[..., 2], q[..., 3]), axis=-1)
     return matrix.reshape(q.shape[:-1] + (3, 3))
+
+
+def matrix_from_quaternion(quaternion: Quaternion) -> NDArray[np.float64]:
+    """Rotation matrix (3, 3) of one unit quaternion given as floats (not normalised again);
+    the per-sample form of :func:`matrix_from_wxyz`."""
+    return np.array(_matrix_entries(*quaternion)).reshape(3, 3)
 
 
 def quaternion_multiply(left: ArrayLike, right: ArrayLike) -> NDArray[np.float64]:
@@ -131,37 +173,114 @@ def quaternion_multiply(left: ArrayLike, right: ArrayLike) -> NDArray[np.float64
     """
     a = np.asarray(left, dtype=float)
     b = np.asarray(right, dtype=float)
-    w1, x1, y1, z1 = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    w2, x2, y2, z2 = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ],
-        axis=-1,
-    )
+    return np.stack(_hamilton(a[..., 0], a[..., 1], a[..., 2], a[..., 3],
+                              b[..., 0], b[..., 1], b[..., 2], b[..., 3]), axis=-1)
+
+
+def quaternion_product(a: Quaternion, b: Quaternion) -> Quaternion:
+    """Hamilton product ``a ⊗ b`` of two quaternions given as floats; the per-sample form of
+    :func:`quaternion_multiply`."""
+    return _hamilton(*a, *b)
+
+
+def normalise(quaternion: Quaternion) -> Quaternion:
+    """``q / |q|`` of a quaternion given as floats."""
+    w, x, y, z = quaternion
+    inverse = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+    return (w * inverse, x * inverse, y * inverse, z * inverse)
+
+
+def conjugate(quaternion: Quaternion) -> Quaternion:
+    """``q* = [w, -x, -y, -z]`` (the inverse of a unit quaternion), floats."""
+    w, x, y, z = quaternion
+    return (w, -x, -y, -z)
+
+
+def quaternion_exp(rotation_vector: Vector) -> Quaternion:
+    """Exponential map of one rotation vector theta (rad), floats::
+
+        Exp(theta) = [cos(|theta|/2), sin(|theta|/2) theta/|theta|]
+
+    first order, ``[1, theta/2]``, below :data:`SMALL_ANGLE`; NaN for a non-finite theta.
+    """
+    x, y, z = rotation_vector
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < SMALL_ANGLE:
+        return (1.0, 0.5 * x, 0.5 * y, 0.5 * z)
+    if not math.isfinite(angle):  # an overflowed step: no rotation can be given
+        return (math.nan, math.nan, math.nan, math.nan)
+    scale = math.sin(0.5 * angle) / angle
+    return (math.cos(0.5 * angle), scale * x, scale * y, scale * z)
+
+
+def quaternion_exp_rows(rotation_vectors: ArrayLike) -> NDArray[np.float64]:
+    """The exponential map of :func:`quaternion_exp` over rows theta (n, 3), rad; (n, 4)."""
+    delta = np.asarray(rotation_vectors, dtype=float)
+    angle = np.linalg.norm(delta, axis=1)
+    # sin(x/2)/x, with its limit 1/2 at x = 0
+    factor = np.where(angle > SMALL_ANGLE,
+                      np.sin(angle / 2) / np.where(angle > 0, angle, 1.0), 0.5)
+    return np.column_stack([np.cos(angle / 2), factor[:, None] * delta])
+
+
+def quaternion_about_axis(axis: ArrayLike, angle: ArrayLike) -> NDArray[np.float64]:
+    """Rotations by signed angles theta (n,) rad about one unit axis (3,)::
+
+        q = [cos(theta/2), sin(theta/2) axis]
+
+    (the exponential map of ``theta axis``, without its norm); (n, 4)."""
+    angles = np.asarray(angle, dtype=float)
+    half = angles / 2
+    return np.column_stack([np.cos(half), np.sin(half)[:, None] * np.asarray(axis, float)])
+
+
+def quaternion_log(quaternion: Quaternion) -> Vector:
+    """Rotation vector theta (rad, |theta| <= pi) with ``Exp(theta) = ±quaternion``, floats."""
+    w, x, y, z = quaternion
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    norm = math.sqrt(x * x + y * y + z * z)
+    if norm < SMALL_ANGLE:
+        return (2.0 * x, 2.0 * y, 2.0 * z)
+    scale = 2.0 * math.atan2(norm, w) / norm
+    return (scale * x, scale * y, scale * z)
+
+
+def rotation_angle(first: ArrayLike, second: ArrayLike) -> float:
+    """Angle of the rotation between two unit quaternions (4,), rad, in [0, pi]::
+
+        [w, v] = first* ⊗ second,  angle = 2 atan2(|v|, |w|)
+
+    (well conditioned at small angles, where ``2 acos |<q1, q2>|`` loses half the digits)."""
+    a = np.asarray(first, dtype=float)
+    b = np.asarray(second, dtype=float)
+    w, x, y, z = quaternion_product(conjugate((float(a[0]), float(a[1]), float(a[2]),
+                                               float(a[3]))),
+                                    (float(b[0]), float(b[1]), float(b[2]), float(b[3])))
+    return 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
+
+
+def quaternion_step(quaternion: Quaternion, angular_rate: Vector, dt: float) -> Quaternion:
+    """One gyroscope step at a constant body rate, exact for a constant rate::
+
+        q(t + dt) = normalise(q(t) ⊗ Exp(omega dt))
+
+    ``angular_rate`` omega in rad/s (IMU frame), ``dt`` in s; floats in and out.
+    """
+    wx, wy, wz = angular_rate
+    return normalise(quaternion_product(quaternion, quaternion_exp((wx * dt, wy * dt, wz * dt))))
 
 
 def integrate_gyroscope(
     q_global_imu: ArrayLike, angular_rate_imu: ArrayLike, dt: float
 ) -> NDArray[np.float64]:
-    """Propagate orientation one step with a constant body rate (exact for constant rate).
-
-        q(t + dt) = q(t) ⊗ exp(½ ω dt),  exp(½ θ) = [cos(|θ|/2), sin(|θ|/2) θ/|θ|]
-
-    ``angular_rate_imu`` is in rad/s in the IMU frame, shape (3,); returns a unit quaternion.
-    """
-    rotation_vector = np.asarray(angular_rate_imu, dtype=float) * dt
-    angle = float(np.linalg.norm(rotation_vector))
-    if angle < 1e-12:
-        increment = np.array([1.0, *(0.5 * rotation_vector)])
-    else:
-        axis = rotation_vector / angle
-        increment = np.array([np.cos(angle / 2), *(np.sin(angle / 2) * axis)])
-    result = quaternion_multiply(q_global_imu, increment)
-    return result / np.linalg.norm(result)
+    """:func:`quaternion_step` on arrays: ``q_global_imu`` (4,) and ``angular_rate_imu`` (3,)
+    rad/s, IMU frame; returns the unit quaternion (4,)."""
+    q = np.asarray(q_global_imu, dtype=float)
+    rate = np.asarray(angular_rate_imu, dtype=float)
+    step = quaternion_step((float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+                           (float(rate[0]), float(rate[1]), float(rate[2])), float(dt))
+    return np.array(step)
 
 
 def specific_force(

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from kfusion.evaluate import GapErrors, gap_errors, metrics_from_errors, per_gap_errors
 from kfusion.guards import atomic_write
-from kfusion.methods import track_recording
+from kfusion.methods import track_with_method
 from kfusion.recording import Recording
 from kfusion.track import TrackResult
 
@@ -62,7 +62,7 @@ def run_method(scored: ScoredRecording, method: str, options: Mapping[str, Any] 
                ) -> MethodRun:
     """Track ``scored.recording`` with ``method`` and score its gap samples."""
     start = time.perf_counter()
-    result = track_recording(scored.recording, method, **dict(options or {}))
+    result = track_with_method(scored.recording, method, **dict(options or {}))
     seconds = time.perf_counter() - start
     per_gap = per_gap_errors(result, scored.truth_position, scored.gap_mask)
     per_gap.insert(0, "method", method)
@@ -72,8 +72,7 @@ def run_method(scored: ScoredRecording, method: str, options: Mapping[str, Any] 
                      seconds=seconds, imu_samples=len(scored.recording.imu), per_gap=per_gap)
 
 
-def summary_table(runs: Sequence[MethodRun], *, reference: str = "baseline",
-                  versus: str = "kalman") -> pd.DataFrame:
+def summary_table(runs: Sequence[MethodRun], *, reference: str = "baseline") -> pd.DataFrame:
     """One row per method, pooling all its runs: samples, rms/max/mean mm, coverage, lost
     fraction, IMU samples per second; and the ratio ``rms(reference) / rms(method)``."""
     rows = []

@@ -2,7 +2,7 @@
 
 Every method returns a :class:`kfusion.track.TrackResult` with one row per mocap row. The
 ``kfusion track``, ``run``, ``sweep`` and ``demo`` commands and the benchmarks all go through
-:func:`track_recording`, so a method added here shows up everywhere.
+:func:`track_with_method`, so a method added here shows up everywhere.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def method_function(name: str) -> Callable[..., TrackResult]:
     return getattr(importlib.import_module(module_name), function_name)
 
 
-def track_recording(recording: Recording, method: str, **options: Any) -> TrackResult:
+def track_with_method(recording: Recording, method: str, **options: Any) -> TrackResult:
     """Run method ``method`` over ``recording``; ``options`` go to the method's parameters.
 
     The IMU clock model of ``recording.info`` (``imu_time_offset``, ``imu_clock_drift_ppm``) is

@@ -81,17 +81,6 @@ def write_track_csv(result: TrackResult, path: str | Path) -> Path:
     return atomic_write(path, lambda temporary: frame.to_csv(temporary, index=False, na_rep=""))
 
 
-def read_track_csv(path: str | Path) -> pd.DataFrame:
-    """Read a ``kfusion track`` CSV back as a DataFrame with the documented columns."""
-    import pandas as pd  # on first use: `import kfusion.tracker` stays light
-
-    frame = pd.read_csv(path)
-    missing = [c for c in TRACK_COLUMNS if c not in frame.columns]
-    if missing:
-        raise ValueError(f"{path}: missing column(s) {missing}; expected {list(TRACK_COLUMNS)}")
-    return frame[list(TRACK_COLUMNS)]
-
-
 def read_track(path: str | Path) -> TrackResult:
     """A ``kfusion track`` CSV as a :class:`TrackResult` (``time_since_fix`` is not in the file:
     NaN). :class:`~kfusion.recording.RecordingError` naming the file, row and column of a
@@ -101,7 +90,11 @@ def read_track(path: str | Path) -> TrackResult:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: file not found; expected a kfusion track CSV")
-    frame = read_track_csv(path)
+    frame = pd.read_csv(path)
+    missing = [c for c in TRACK_COLUMNS if c not in frame.columns]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {missing}; expected {list(TRACK_COLUMNS)}")
+    frame = frame[list(TRACK_COLUMNS)]
     numbers = frame[list(TRACK_COLUMNS[:7])].apply(pd.to_numeric, errors="coerce")
     bad = numbers.isna().to_numpy() & frame[list(TRACK_COLUMNS[:7])].notna().to_numpy()
     bad[:, 0] |= numbers["t"].isna().to_numpy()

@@ -342,7 +342,7 @@ def test_zero_accelerometer_noise_densities_are_refused(name):
 
 def test_a_noise_free_gyroscope_is_allowed_and_the_smoother_stays_regular():
     # every other noise term zero too: what made the smoother's covariance singular before
-    from kfusion.methods import track_recording
+    from kfusion.methods import track_with_method
 
     recording = simulate("circle", seed=0, duration=6.0,
                          occlusions=OcclusionSpec(gap_range=(0.1, 0.2))).recording
@@ -351,7 +351,7 @@ def test_a_noise_free_gyroscope_is_allowed_and_the_smoother_stays_regular():
                                    "mocap_orientation_noise", "accelerometer_scale_error",
                                    "gyroscope_scale_error", "lever_arm_std",
                                    "tilt_error_inflation")}
-    result = track_recording(recording, "smoother", **zero)
+    result = track_with_method(recording, "smoother", **zero)
     assert np.isfinite(result.std[result.status != "lost"]).all()
 
 

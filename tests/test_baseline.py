@@ -35,7 +35,7 @@ from kfusion.conventions import (
     quaternion_multiply,
     specific_force,
 )
-from kfusion.methods import track_recording as track_with_method
+from kfusion.methods import track_with_method
 from kfusion.recording import ImuSamples, MocapFrames, Recording, RecordingInfo
 
 GRAVITY = np.array([0.0, -9.81, 0.0])

@@ -17,6 +17,7 @@ from kfusion.config import (
     BroadData,
     ConfigError,
     FolderData,
+    GapsConfig,
     RunConfig,
     SimulateData,
     SweepConfig,
@@ -27,7 +28,9 @@ from kfusion.config import (
     load_run_config,
     load_sweep_config,
     parse_config,
+    recording_with_gaps,
 )
+from kfusion.evaluate import cut_gaps
 from kfusion.methods import METHODS
 from kfusion.recording import write_recording
 from kfusion.simulate import simulate
@@ -214,6 +217,35 @@ def test_quick_simulation_is_shorter_but_keeps_its_gaps(tmp_path):
     assert quick.gap_mask.any()
 
 
+def test_combined_data_is_its_parts_labelled():
+    part = {**SIMULATED, "occlusions": {"placement": "direction_change"}}
+    combined = parse_config({"data": {"kind": "combined",
+                                      "parts": {"type2": part, "plain": SIMULATED}}})
+    scored = combined.scored_recordings(3)
+    assert [one.name for one in scored] == ["type2/arm_lift/mpu9255/seed3",
+                                            "plain/arm_lift/mpu9255/seed3"]
+    alone = parse_config({"data": part}).scored_recordings(3)[0]
+    np.testing.assert_array_equal(scored[0].gap_mask, alone.gap_mask)
+    np.testing.assert_array_equal(scored[0].recording.imu.accelerometer,
+                                  alone.recording.imu.accelerometer)
+    assert not np.array_equal(scored[0].gap_mask, scored[1].gap_mask)
+
+
+def test_gap_seeding_per_recording_or_shared():
+    recording = simulate("circle", seed=0, duration=12.0, occlusions=None).recording
+    shared = GapsConfig(seeding="shared")
+    # shared: the generator of the seed alone, as cut_gaps with default_rng(seed)
+    expected = cut_gaps(recording, rng=np.random.default_rng(4)).gap_mask
+    for name in ("one", "two"):
+        np.testing.assert_array_equal(recording_with_gaps(name, recording, shared, 4).gap_mask,
+                                      expected)
+    # per recording: the name enters the seed, so two names get two patterns
+    first = recording_with_gaps("one", recording, GapsConfig(), 4)
+    second = recording_with_gaps("two", recording, GapsConfig(), 4)
+    assert first.name == "one/seed4" and first.gap_mask.any()
+    assert not np.array_equal(first.gap_mask, second.gap_mask)
+
+
 # --------------------------------------------------------------------------------------------
 # mistakes: one line naming the file and the key path
 
@@ -240,7 +272,18 @@ def test_quick_simulation_is_shorter_but_keeps_its_gaps(tmp_path):
     ({"data": {**SIMULATED, "imu": "mpu6050"}},
      r"data\.imu: unknown IMU profile; expected one of \[.*'mpu9255', 'um7'\], got 'mpu6050'"),
     ({"data": {"kind": "optical"}},
-     r"data\.kind: expected one of \['broad', 'folder', 'simulate'\], got 'optical'"),
+     r"data\.kind: expected one of \['broad', 'combined', 'folder', 'simulate'\], "
+     r"got 'optical'"),
+    ({"data": {"kind": "combined", "parts": {"a": {**SIMULATED, "imux": "um7"}}}},
+     r"data\.parts\.a\.imux: unknown key; expected one of \['duration', 'imu', 'kind', "),
+    ({"data": {"kind": "combined", "parts": {"a": {"kind": "combined", "parts": {}}}}},
+     r"data\.parts\.a\.kind: expected one of \['broad', 'folder', 'simulate'\], "
+     r"got 'combined'"),
+    ({"data": {"kind": "combined", "parts": {"a/b": SIMULATED}}},
+     r"data\.parts: expected a plain name"),
+    ({"data": {"kind": "combined", "parts": {}}}, r"data\.parts: .*at least 1 item"),
+    ({"data": {"kind": "broad", "gaps": {"seeding": "sometimes"}}},
+     r"data\.gaps\.seeding: Input should be 'per_recording' or 'shared', got 'sometimes'"),
     ({"data": {"scenario": "circle"}}, r"data\.kind: expected one of"),
     ({"seeds": 2}, r": data: required key is missing"),
     ({"data": {"kind": "broad", "trials": "some"}},

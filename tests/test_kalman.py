@@ -30,15 +30,9 @@ from kfusion.kalman import (
     model,
     run_filter,
 )
-from kfusion.kalman.orientation import (
-    OrientationTracker,
-    matrix_from_quaternion,
-    quaternion_exp,
-    quaternion_log,
-    quaternion_step,
-)
+from kfusion.kalman.orientation import OrientationTracker
 from kfusion.kalman.reference import reference_filter
-from kfusion.methods import track_recording
+from kfusion.methods import track_with_method
 from kfusion.profiles import MPU9255, OPTITRACK, UM7
 from kfusion.recording import ImuSamples, MocapFrames, Recording, RecordingInfo
 from kfusion.simulate import OcclusionSpec, simulate
@@ -69,27 +63,6 @@ def sim_recording(seed: int = 3, duration: float = 12.0, gap_range: tuple = (0.1
 def with_mocap(recording: Recording, position: np.ndarray, quaternion: np.ndarray) -> Recording:
     mocap = recording.mocap
     return recording.with_mocap(MocapFrames(mocap.t, position, quaternion))
-
-
-# ------------------------------------------------------------------------------------------
-# orientation helpers follow kfusion.conventions
-# ------------------------------------------------------------------------------------------
-
-
-def test_orientation_helpers_follow_the_conventions():
-    rng = np.random.default_rng(0)
-    for _ in range(20):
-        q = rng.normal(size=4)
-        q /= np.linalg.norm(q)
-        rate = rng.normal(size=3) * 3.0
-        step = quaternion_step(tuple(q), tuple(rate), 0.01)
-        np.testing.assert_allclose(step, integrate_gyroscope(q, rate, 0.01), atol=1e-14)
-        np.testing.assert_allclose(matrix_from_quaternion(tuple(q)), matrix_from_wxyz(q),
-                                   atol=1e-14)
-        theta = rng.normal(size=3)
-        theta *= min(1.0, 3.0 / np.linalg.norm(theta))
-        np.testing.assert_allclose(quaternion_log(quaternion_exp(tuple(theta))), theta,
-                                   atol=1e-12)
 
 
 def test_orientation_tracker_learns_a_gyroscope_bias_from_mocap():
@@ -584,7 +557,7 @@ def test_filter_recording_takes_the_profile_from_the_recording_and_overrides():
     assert default.params == KalmanParameters.from_profiles("mpu9255")
     um7 = dataclasses.replace(recording, info=dataclasses.replace(recording.info, imu="um7"))
     assert run_filter(um7).params == KalmanParameters.from_profiles("um7")
-    result = track_recording(recording, "kalman", max_bridge_s=0.25)
+    result = track_with_method(recording, "kalman", max_bridge_s=0.25)
     assert result.method == "kalman" and len(result) == len(recording.mocap)
     np.testing.assert_array_equal(result.t, recording.mocap.t)
     with pytest.raises(ValueError, match="unknown override 'bridge'"):

@@ -9,16 +9,19 @@ parameters are the defaults from the sensor profiles.
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
-from kfusion.config import first_seconds
+from kfusion.config import (
+    GapsConfig,
+    OcclusionsConfig,
+    first_seconds,
+    recording_with_gaps,
+    simulated_recording,
+)
 from kfusion.datasets import broad_excerpt, broad_trial
-from kfusion.evaluate import cut_gaps
 from kfusion.experiment import ScoredRecording, run_method, summary_table
 from kfusion.readers.broad import read_broad
 from kfusion.recording import Recording, read_recording
-from kfusion.simulate import OcclusionSpec, simulate
 
 METHODS = ("baseline", "kalman", "smoother")
 
@@ -32,13 +35,9 @@ def score(scored: list[ScoredRecording]):
                                                      ("arm_lift", "direction_change"),
                                                      ("pick_tool", "random")])
 def test_simulated_paper_experiment_meets_the_targets(scenario, placement):
-    scored = []
-    for seed in (11, 12):
-        simulation = simulate(scenario, seed=seed, imu="mpu9255",
-                              occlusions=OcclusionSpec(gap_range=(0.1, 0.3), placement=placement))
-        scored.append(ScoredRecording(f"{scenario}/{seed}", simulation.recording,
-                                      simulation.truth.position, simulation.truth.occluded))
-    table = score(scored)
+    occlusions = OcclusionsConfig(gap_range=(0.1, 0.3), placement=placement)
+    table = score([simulated_recording(scenario, seed, imu="mpu9255", occlusions=occlusions)
+                   for seed in (11, 12)])
     assert table.loc["kalman", "samples"] > 100
     assert table.loc["kalman", "rms_mm"] <= 5.0
     assert table.loc["smoother", "rms_mm"] <= 2.0
@@ -49,9 +48,8 @@ def test_simulated_paper_experiment_meets_the_targets(scenario, placement):
 
 
 def assert_real_targets(name: str, recording: Recording) -> None:
-    gapped = cut_gaps(recording, rng=np.random.default_rng(7), gap_range=(0.1, 0.3))
-    table = score([ScoredRecording(name, gapped.recording, gapped.truth_position,
-                                   gapped.gap_mask)])
+    gaps = GapsConfig(gap_range=(0.1, 0.3), seeding="shared")
+    table = score([recording_with_gaps(name, recording, gaps, seed=7)])
     assert table.loc["kalman", "samples"] > 200
     assert table.loc["kalman", "rms_mm"] <= 8.0
     assert table.loc["kalman", "baseline_over_method"] >= 5.0

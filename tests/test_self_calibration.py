@@ -26,7 +26,7 @@ from kfusion.calibration.noise import third_difference_std
 from kfusion.calibration.specific_force import SCALE_ERROR_BASIS, lever_arm_matrix
 from kfusion.cli import main
 from kfusion.conventions import imu_time_to_mocap, rotation_from_wxyz
-from kfusion.methods import track_recording
+from kfusion.methods import track_with_method
 from kfusion.recording import (
     ImuSamples,
     MocapFrames,
@@ -211,8 +211,8 @@ def test_every_method_and_the_tracker_honour_the_clock_model(shifted):
     calibrated = dataclasses.replace(shifted.recording, info=dataclasses.replace(
         shifted.recording.info, imu_time_offset=1.3, imu_clock_drift_ppm=60.0))
     for method in ("baseline", "kalman", "smoother"):
-        via_info = track_recording(calibrated, method)
-        direct = track_recording(synced, method)
+        via_info = track_with_method(calibrated, method)
+        direct = track_with_method(synced, method)
         np.testing.assert_array_equal(via_info.position, direct.position)
     tracker = Tracker.from_recording_info(calibrated.info)
     reference = Tracker.from_recording_info(synced.info)

@@ -12,7 +12,7 @@ from kfusion.conventions import BRIDGED, LOST, TRACKED
 from kfusion.evaluate import gap_errors, metrics_from_errors
 from kfusion.kalman import GATED, run_smoother, smooth_recording
 from kfusion.kalman.smoother import initialised_segments, rts_backward, smoother_status
-from kfusion.methods import track_recording
+from kfusion.methods import track_with_method
 from kfusion.recording import MocapFrames
 from kfusion.simulate import OcclusionSpec, simulate
 
@@ -172,7 +172,7 @@ def test_smoother_uses_gated_frames_as_nothing():
 
 def test_smooth_recording_through_the_method_registry():
     sim = gap_simulation(0)
-    result = track_recording(sim.recording, "smoother")
+    result = track_with_method(sim.recording, "smoother")
     assert result.method == "smoother" and len(result) == len(sim.recording.mocap)
     again = smooth_recording(sim.recording)
     np.testing.assert_array_equal(result.position, again.position)

@@ -335,7 +335,7 @@ def on_mocap_clock(recording: Recording) -> Recording:
     (:func:`kfusion.conventions.imu_time_to_mocap` with ``info.imu_time_offset`` and
     ``info.imu_clock_drift_ppm``) and those two fields set to 0; unchanged when both are 0.
 
-    Every estimator runs on the result (:func:`kfusion.methods.track_recording`), so the clock
+    Every estimator runs on the result (:func:`kfusion.methods.track_with_method`), so the clock
     model is applied in one place.
     """
     info = recording.info

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from kfusion.calibration.recording import SelfCalibration
 from kfusion.evaluate import GappedRecording, cut_gaps, gap_errors, metrics_from_errors
-from kfusion.methods import track_recording
+from kfusion.methods import track_with_method
 from kfusion.recording import Recording
 
 
@@ -29,7 +29,7 @@ def gap_rms_and_lost(recording: Recording, truth_position: NDArray[np.float64],
                      ) -> tuple[float, float]:
     """(RMS gap error over the bridged gap samples, mm; gap samples called lost, %). A lost
     sample is not scored in the RMS, so both are needed."""
-    metrics = metrics_from_errors(gap_errors(track_recording(recording, method),
+    metrics = metrics_from_errors(gap_errors(track_with_method(recording, method),
                                              truth_position, gap_mask))
     return float(metrics["rms_mm"]), 100.0 * float(metrics["lost_fraction"])
 

@@ -11,7 +11,7 @@ from kfusion.calibration.diagnosis import diagnose
 from kfusion.config import check_methods
 from kfusion.conventions import STATUSES
 from kfusion.guards import YamlError, load_yaml_text, short_repr
-from kfusion.methods import METHODS, track_recording
+from kfusion.methods import METHODS, track_with_method
 from kfusion.recording import read_recording
 from kfusion.track import write_track_csv
 
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     diagnosis = diagnose(recording)
     if not diagnosis.ok and not args.force:
         raise ValueError(f"{args.folder}: {diagnosis.problems[0]} (or pass --force)")
-    result = track_recording(recording, args.method, **parse_options(args.options, args.method))
+    result = track_with_method(recording, args.method, **parse_options(args.options, args.method))
     path = write_track_csv(result, args.out)
     counts = {status: int(np.sum(result.status == status)) for status in STATUSES}
     summary = ", ".join(f"{count} {status}" for status, count in counts.items())

@@ -321,12 +321,6 @@ def saturation_variance(sensor_range: float) -> float:
     return 0.25 * sensor_range * sensor_range
 
 
-def is_saturated(sample: ArrayLike, sensor_range: float) -> bool:
-    """True when any axis of ``sample`` reaches :data:`SATURATION_FRACTION` of ``sensor_range``."""
-    return bool(np.max(np.abs(np.asarray(sample, dtype=float))) >= SATURATION_FRACTION
-                * sensor_range)
-
-
 def reacquisition_inflation(innovation: ArrayLike, time_since_fix: float
                             ) -> tuple[float, float]:
     """Variances (per axis) added to position and velocity to re-initialise on a fix whose

@@ -33,93 +33,35 @@ covariance is three scalars. The rotation of the error frame by ``omega dt`` is 
 leaves an isotropic covariance unchanged.
 
 The maths is written on Python floats: at IMU rate a 4-element numpy operation costs more in call
-overhead than the arithmetic. :func:`quaternion_step` and :func:`matrix_from_quaternion` follow
-:mod:`kfusion.conventions` exactly (``[w, x, y, z]``, Hamilton product) and are tested against it.
+overhead than the arithmetic. The quaternion operations are the per-sample forms in
+:mod:`kfusion.conventions` (re-exported here for the filters that import them from this module).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-Quaternion = tuple[float, float, float, float]
-"""Unit quaternion ``(w, x, y, z)`` as Python floats."""
-Vector = tuple[float, float, float]
+from kfusion.conventions import (
+    Quaternion,
+    Vector,
+    conjugate,
+    matrix_from_quaternion,
+    normalise,
+    quaternion_exp,
+    quaternion_log,
+    quaternion_product,
+    quaternion_step,
+)
 
-
-def quaternion_product(a: Quaternion, b: Quaternion) -> Quaternion:
-    """Hamilton product ``a ⊗ b`` (same as :func:`kfusion.conventions.quaternion_multiply`)."""
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return (
-        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-    )
-
-
-def quaternion_exp(rotation_vector: Vector) -> Quaternion:
-    """``Exp(theta) = [cos(|theta|/2), sin(|theta|/2) theta/|theta|]``, theta in rad."""
-    x, y, z = rotation_vector
-    angle = math.sqrt(x * x + y * y + z * z)
-    if angle < 1e-12:
-        return (1.0, 0.5 * x, 0.5 * y, 0.5 * z)
-    if not math.isfinite(angle):  # an overflowed step: no rotation can be given
-        return (math.nan, math.nan, math.nan, math.nan)
-    scale = math.sin(0.5 * angle) / angle
-    return (math.cos(0.5 * angle), scale * x, scale * y, scale * z)
-
-
-def quaternion_log(quaternion: Quaternion) -> Vector:
-    """Rotation vector ``theta`` (rad, |theta| <= pi) with ``Exp(theta) = ±quaternion``."""
-    w, x, y, z = quaternion
-    if w < 0:
-        w, x, y, z = -w, -x, -y, -z
-    norm = math.sqrt(x * x + y * y + z * z)
-    if norm < 1e-12:
-        return (2.0 * x, 2.0 * y, 2.0 * z)
-    scale = 2.0 * math.atan2(norm, w) / norm
-    return (scale * x, scale * y, scale * z)
-
-
-def normalise(quaternion: Quaternion) -> Quaternion:
-    """``q / |q|``."""
-    w, x, y, z = quaternion
-    inverse = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
-    return (w * inverse, x * inverse, y * inverse, z * inverse)
-
-
-def conjugate(quaternion: Quaternion) -> Quaternion:
-    """``q* = [w, -x, -y, -z]`` (the inverse of a unit quaternion)."""
-    w, x, y, z = quaternion
-    return (w, -x, -y, -z)
-
-
-def quaternion_step(quaternion: Quaternion, angular_rate: Vector, dt: float) -> Quaternion:
-    """One gyroscope step at constant body rate: ``q ⊗ Exp(omega dt)``, normalised.
-
-    Same as :func:`kfusion.conventions.integrate_gyroscope`; ``angular_rate`` in rad/s (IMU frame),
-    ``dt`` in s.
-    """
-    wx, wy, wz = angular_rate
-    return normalise(quaternion_product(quaternion, quaternion_exp((wx * dt, wy * dt, wz * dt))))
-
-
-def matrix_from_quaternion(quaternion: Quaternion) -> NDArray[np.float64]:
-    """Rotation matrix (3, 3) of a unit quaternion (same as
-    :func:`kfusion.conventions.matrix_from_wxyz`)."""
-    w, x, y, z = quaternion
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
+__all__ = [
+    "OrientationState", "OrientationTracker", "Quaternion", "Vector", "conjugate",
+    "matrix_from_quaternion", "normalise", "propagate_orientation_covariance",
+    "quaternion_exp", "quaternion_log", "quaternion_product", "quaternion_step",
+]
 
 def propagate_orientation_covariance(
     covariance: tuple[float, float, float],

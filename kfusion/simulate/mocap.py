@@ -11,19 +11,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from kfusion.conventions import quaternion_multiply
+from kfusion.conventions import canonical_wxyz, quaternion_exp_rows, quaternion_multiply
 from kfusion.profiles import MocapProfile
 
 Array = NDArray[np.float64]
-
-
-def rotation_vector_quaternion(rotation_vector: Array) -> Array:
-    """``exp(½ δ) = [cos(|δ|/2), sin(|δ|/2) δ/|δ|]`` for rows δ (n, 3), rad; (n, 4)."""
-    delta = np.asarray(rotation_vector, dtype=float)
-    angle = np.linalg.norm(delta, axis=1)
-    # sin(x/2)/x, with its limit 1/2 at x = 0
-    factor = np.where(angle > 1e-12, np.sin(angle / 2) / np.where(angle > 0, angle, 1.0), 0.5)
-    return np.column_stack([np.cos(angle / 2), factor[:, None] * delta])
 
 
 def measure_mocap(rng: np.random.Generator, profile: MocapProfile, position: Array,
@@ -35,15 +26,10 @@ def measure_mocap(rng: np.random.Generator, profile: MocapProfile, position: Arr
     rotation_error = profile.orientation_noise * rng.standard_normal((m, 3))
     measured_position = np.asarray(position, dtype=float) + position_error
     measured_quaternion = quaternion_multiply(quaternion,
-                                              rotation_vector_quaternion(rotation_error))
+                                              quaternion_exp_rows(rotation_error))
     measured_quaternion /= np.linalg.norm(measured_quaternion, axis=1, keepdims=True)
-    measured_quaternion = canonical_sign(measured_quaternion)
+    measured_quaternion = canonical_wxyz(measured_quaternion)
     hidden = np.asarray(occluded, dtype=bool)[:, None]
     return (np.where(hidden, np.nan, measured_position),
             np.where(hidden, np.nan, measured_quaternion))
 
-
-def canonical_sign(quaternion: Array) -> Array:
-    """The same rotations (n, 4) with w >= 0, as :func:`kfusion.conventions.wxyz_from_rotation`
-    writes them."""
-    return np.where(np.asarray(quaternion)[:, :1] < 0, -quaternion, quaternion)

@@ -40,7 +40,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from kfusion.conventions import quaternion_multiply
+from kfusion.conventions import rotation_angle
 from kfusion.simulate.trajectories import (
     AngleChainOrientation,
     Array,
@@ -49,8 +49,7 @@ from kfusion.simulate.trajectories import (
     LinearCombination,
     Motion,
     PolarCurve,
-    axis_angle_quaternion,
-    relative_angle,
+    chain_quaternion,
 )
 
 DEGREE = np.pi / 180.0
@@ -60,6 +59,9 @@ BASE_QUATERNION = np.array([np.sqrt(0.5), 0.0, -np.sqrt(0.5), 0.0])
 
 ANGLE_AXES = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
 """Body axes of the yaw, pitch and roll rotations, applied in that order."""
+
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+"""The identity quaternion [w, x, y, z]."""
 
 MINIMUM_JERK_PEAK = 1.875
 """Peak speed of a rest-to-rest minimum-jerk move is 15/8 D / T."""
@@ -82,14 +84,6 @@ def minimum_jerk_duration(distance: float, peak_speed: float) -> float:
     :data:`MAX_ACCELERATION`."""
     return max(MINIMUM_JERK_PEAK * distance / peak_speed,
                float(np.sqrt(MINIMUM_JERK_PEAK_ACCELERATION * distance / MAX_ACCELERATION)))
-
-
-def chain_quaternion(angles: Array) -> Array:
-    """``exp(yaw y) ⊗ exp(pitch z) ⊗ exp(roll x)`` for one set of angles (3,), rad; (4,)."""
-    quaternion = np.array([1.0, 0.0, 0.0, 0.0])
-    for axis, angle in zip(ANGLE_AXES, angles, strict=True):
-        quaternion = quaternion_multiply(quaternion, axis_angle_quaternion(axis, [angle])[0])
-    return quaternion
 
 
 def _orientation(angles: Curve) -> AngleChainOrientation:
@@ -370,10 +364,11 @@ def random_reach(rng: np.random.Generator, duration: float) -> Motion:
             distance = float(np.linalg.norm(target - position))
             if 0.25 <= distance <= 0.8:
                 break
-        current = chain_quaternion(angles)
+        current = chain_quaternion(IDENTITY, ANGLE_AXES, angles[None, :])[0]
         for _ in range(200):
             target_angles = rng.uniform(*REACH_ANGLE_BOX)
-            turn = relative_angle(current, chain_quaternion(target_angles))
+            turn = rotation_angle(
+                current, chain_quaternion(IDENTITY, ANGLE_AXES, target_angles[None, :])[0])
             if 90 * DEGREE <= turn <= 180 * DEGREE:
                 break
         angle_change = float(np.linalg.norm(target_angles - angles))

@@ -43,6 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 from kfusion.conventions import (
     OPTITRACK_GRAVITY,
     matrix_from_wxyz,
+    quaternion_exp_rows,
     quaternion_multiply,
     specific_force,
 )
@@ -54,7 +55,7 @@ from kfusion.simulate.imu import (
     jittered_stamps,
     simulate_imu,
 )
-from kfusion.simulate.mocap import measure_mocap, rotation_vector_quaternion
+from kfusion.simulate.mocap import measure_mocap
 from kfusion.simulate.occlusions import OcclusionSpec, place_occlusions
 from kfusion.simulate.scenarios import BUILDERS, DEFAULT_DURATIONS, MIN_DURATION
 
@@ -163,7 +164,7 @@ def sample_times(duration: float, rate: float) -> Array:
 
 def mount_quaternion(rng: np.random.Generator) -> Array:
     """q_body_imu: :data:`NOMINAL_MOUNT` ⊗ exp(½ δ), δ ~ N(0, MOUNT_MISALIGNMENT^2) per axis."""
-    misalignment = rotation_vector_quaternion(MOUNT_MISALIGNMENT * rng.standard_normal((1, 3)))
+    misalignment = quaternion_exp_rows(MOUNT_MISALIGNMENT * rng.standard_normal((1, 3)))
     quaternion = quaternion_multiply(NOMINAL_MOUNT, misalignment[0])
     return quaternion / np.linalg.norm(quaternion)
 

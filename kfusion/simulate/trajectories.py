@@ -16,14 +16,13 @@ expressions, so the simulated accelerometer and gyroscope are exact, never finit
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kfusion.conventions import quaternion_multiply
+from kfusion.conventions import quaternion_about_axis, quaternion_multiply
 
 Array = NDArray[np.float64]
 CurveValue = tuple[Array, Array, Array]
@@ -187,10 +186,6 @@ class KnotList:
     def last_time(self) -> float:
         return self.times[-1]
 
-    @property
-    def last_value(self) -> Array:
-        return self.values[-1]
-
     def hold_until(self, time: float) -> None:
         """Stay at rest at the last value until ``time`` (no knot if ``time`` is not later)."""
         if time > self.times[-1]:
@@ -281,11 +276,14 @@ class LinearCombination:
 # --------------------------------------------------------------------------------------------
 
 
-def axis_angle_quaternion(axis: ArrayLike, angle: ArrayLike) -> Array:
-    """``exp(θ a) = [cos(θ/2), sin(θ/2) a]`` for a unit axis (3,) and angles (n,); (n, 4)."""
-    angle = np.asarray(angle, dtype=float)
-    half = angle / 2
-    return np.column_stack([np.cos(half), np.sin(half)[:, None] * np.asarray(axis, float)])
+def chain_quaternion(base: ArrayLike, axes: ArrayLike, angles: Array) -> Array:
+    """``q0 ⊗ exp(θ1 a1) ⊗ ... ⊗ exp(θk ak)`` for base q0 (4,) [w, x, y, z], unit axes (k, 3)
+    and angles (n, k) rad; (n, 4), not normalised."""
+    angles = np.asarray(angles, dtype=float)
+    quaternion = np.broadcast_to(np.asarray(base, dtype=float), (angles.shape[0], 4))
+    for index, axis in enumerate(np.asarray(axes, dtype=float)):
+        quaternion = quaternion_multiply(quaternion, quaternion_about_axis(axis, angles[:, index]))
+    return quaternion
 
 
 def rotate_about_axis(vectors: Array, axis: ArrayLike, angle: Array) -> Array:
@@ -321,12 +319,9 @@ class AngleChainOrientation:
         """Quaternion body -> global (n, 4) [w, x, y, z] and body-frame rate (n, 3) rad/s."""
         times = _times(t)
         theta, theta_rate, _ = self.angles.evaluate(times)
-        quaternion = np.broadcast_to(np.asarray(self.base, dtype=float),
-                                     (times.shape[0], 4))
+        quaternion = chain_quaternion(self.base, self.axes, theta)
         rate = np.zeros((times.shape[0], 3))
         for index, axis in enumerate(np.asarray(self.axes, dtype=float)):
-            quaternion = quaternion_multiply(quaternion,
-                                             axis_angle_quaternion(axis, theta[:, index]))
             rate = rotate_about_axis(rate, axis, -theta[:, index])
             rate = rate + np.outer(theta_rate[:, index], axis)
         quaternion = quaternion / np.linalg.norm(quaternion, axis=1, keepdims=True)
@@ -372,8 +367,3 @@ class Motion:
         quaternion, rate = self.orientation.evaluate(times)
         return MotionState(times, position, velocity, acceleration, quaternion, rate)
 
-
-def relative_angle(first: Sequence[float] | Array, second: Sequence[float] | Array) -> float:
-    """Angle of the rotation between two unit quaternions, rad: ``2 acos |<q1, q2>|``."""
-    dot = abs(float(np.dot(np.asarray(first, float), np.asarray(second, float))))
-    return 2.0 * float(np.arccos(min(1.0, dot)))
