@@ -18,11 +18,12 @@ the gap RMS of the two fastest trials by about 30 % (measured, before the latenc
 The next sample is known when a predict runs, so this costs no latency.
 
 Any dt works (multi-rate, jittered, dropouts: the covariance grows over the real interval, dt is
-never clamped). At equal timestamps give the IMU sample first, then the mocap frame
-(:func:`kfusion.kalman.filter_recording` does): the fix then lands on a state that holds that
-sample. A sample's time is its timestamp minus ``params.imu_latency_s``; a sample whose time is
-not after the state's (a mocap frame was already fused past it) is kept for the next interval
-without moving the state, and counted as ``imu_late``.
+never clamped). Feed events in the fusion order of :mod:`kfusion.kalman.events` (the batch
+driver and the Tracker do): by time, a sample's time being its timestamp minus
+``params.imu_latency_s`` (:func:`~kfusion.kalman.events.imu_event_time`), and at equal times
+the IMU sample first, then the mocap frame, so that the fix lands on a state that holds that
+sample. A sample whose time is not after the state's (a mocap frame was already fused past it)
+is kept for the next interval without moving the state, and counted as ``imu_late``.
 
 What reaches filterpy is always finite: a NaN/inf IMU sample is rejected and counted without
 touching the state, and a mocap position with any NaN is an occluded frame, which never calls
@@ -97,6 +98,7 @@ from kfusion import streamhealth
 from kfusion.conventions import BRIDGED, LOST, QUATERNION_NORM_TOLERANCE, TRACKED
 from kfusion.guards import refuse_masked
 from kfusion.kalman import model
+from kfusion.kalman.events import imu_event_time
 from kfusion.kalman.orientation import (
     OrientationState,
     OrientationTracker,
@@ -535,7 +537,7 @@ class KalmanFusion:
         f, accelerometer_extra = self._limit(f, params.accelerometer_range,
                                              "accelerometer_saturated")
         omega, gyroscope_extra = self._limit(omega, params.gyroscope_range, "gyroscope_saturated")
-        t = stamp - params.imu_latency_s
+        t = imu_event_time(stamp, params.imu_latency_s)
         if self._imu_time is not None and t - self._imu_time > params.imu_dropout_s:
             self._counters["imu_dropouts"] += 1
         if self._time is not None and t <= self._time and self._imu_time is not None:

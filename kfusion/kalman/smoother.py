@@ -284,30 +284,32 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     smoothed_status = smoother_status(t, fixed, params.max_bridge_s)
     smoothed_status[~fixed & ~recorder.dead_reckoned] = LOST
 
-    position, std = point_estimates(x_filtered, P_filtered, recorder.output_matrix,
-                                    recorder.output_offset)
+    position, variance = point_estimates(x_filtered, P_filtered, recorder.output_matrix,
+                                         recorder.output_offset)
     if watcher is not None:
-        filtered_status, std, _ = apply_monitor(filtered_status, std, recorder.scale_tables,
-                                                recorder.allowed, since,
-                                                watcher.params.horizon_edges_s)
-        std = np.sqrt(std ** 2 + recorder.rival_variance)
-    filtered = TrackResult(t=t, position=position, std=std, status=filtered_status,
-                           time_since_fix=since, method="kalman")
+        filtered_status, variance, _ = apply_monitor(filtered_status, variance,
+                                                     recorder.scale_tables, recorder.allowed,
+                                                     since, watcher.params.horizon_edges_s)
+        variance = variance + recorder.rival_variance
+    filtered = TrackResult(t=t, position=position, std=np.sqrt(variance),
+                           status=filtered_status, time_since_fix=since, method="kalman")
     status = smoothed_status
-    position, std = point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
-                                    recorder.output_offset)
+    position, variance = point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
+                                         recorder.output_offset)
     holdout = None if monitor is None else holdout_scales(recording, params, monitor)
     if holdout is not None:
         bins = len(holdout.params.horizon_edges_s)
         table = np.broadcast_to(holdout.scale_table(), (m, bins))
         allowed = np.full(m, bridging_allowed(math.sqrt(float(table.max())), holdout.gaps,
                                               holdout.params))
-        status, std, _ = apply_monitor(status, std, table, allowed, nearest_fix_distance(t, fixed),
-                                       holdout.params.horizon_edges_s)
+        status, variance, _ = apply_monitor(status, variance, table, allowed,
+                                            nearest_fix_distance(t, fixed),
+                                            holdout.params.horizon_edges_s)
     if watcher is not None:
         # the forward pass's rival hypotheses (a gated fix, or the prediction a fix replaced
         # after gating) are positions the data left open: the smoothed bound holds them too
-        std = np.sqrt(std ** 2 + recorder.rival_variance)
+        variance = variance + recorder.rival_variance
+    std = np.sqrt(variance)
     return SmootherRun(
         result=TrackResult(t=t, position=position, std=std, status=status,
                            time_since_fix=since, method="smoother"),
