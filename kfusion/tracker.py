@@ -99,7 +99,6 @@ from kfusion.conventions import (
     GRAVITY_MAGNITUDE_RANGE,
     LOST,
     QUATERNION_NORM_TOLERANCE,
-    TRACKED,
     imu_time_to_mocap,
 )
 from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, short_repr
@@ -110,6 +109,7 @@ from kfusion.profiles import ImuProfile, imu_profile
 from kfusion.recording import MAX_CLOCK_DRIFT_PPM, RecordingInfo
 from kfusion.streamhealth import (
     DEFAULT_MAX_TIME_JUMP_S,
+    FIX_TIMEOUT_S,
     IMPLAUSIBLE,
     REBASE,
     ImuWatch,
@@ -294,7 +294,7 @@ class TrackerOptions:
             (:class:`kfusion.streamhealth.TimeGuard`). > 0.
     """
 
-    fix_timeout_s: float = 0.05
+    fix_timeout_s: float = FIX_TIMEOUT_S
     max_delay_s: float = 0.1
     checkpoint_interval_s: float = 0.02
     accelerometer_range: float | None = None
@@ -1302,10 +1302,7 @@ class Tracker:
 
     def _status_at(self, t: float) -> str:
         book = self._book
-        since = t - book.fix_time
-        if book.last_frame_fused and since <= self.options.fix_timeout_s:
-            return TRACKED  # fast path of tracking_status
-        return tracking_status(since, book.last_frame_fused,
+        return tracking_status(t - book.fix_time, book.last_frame_fused,
                                fix_timeout_s=self.options.fix_timeout_s,
                                max_bridge_s=self.max_bridge_s,
                                beyond_dead_reckoning=t > self._estimator.dead_reckoning_until())

@@ -16,12 +16,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kfusion.conventions import BRIDGED, LOST, TRACKED
+from kfusion.conventions import BRIDGED, LOST
 from kfusion.kalman.events import IMU_STREAM, merge_events
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
 from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
 from kfusion.monitor import ConsistencyMonitor, MonitorParameters, MonitorReport
 from kfusion.recording import Recording
+from kfusion.streamhealth import FIX_TIMEOUT_S, tracking_status
 from kfusion.track import TrackResult
 
 
@@ -141,23 +142,44 @@ def status_from_fixes(t: NDArray[np.float64], fixed: NDArray[np.bool_], initiali
                       NDArray[np.bool_], max_bridge_s: float,
                       dead_reckoned: NDArray[np.bool_] | None = None
                       ) -> tuple[NDArray[np.str_], NDArray[np.float64]]:
-    """Status and time since the last fix at each row.
+    """Status and time since the last fix (s) at each row: the status rule
+    (:func:`kfusion.streamhealth.tracking_status`) at the row's time, right after its frame.
 
-    ``tracked`` where the row's fix was used, ``bridged`` while the time since the last used fix
-    is at most ``max_bridge_s`` and the row is ``dead_reckoned`` (IMU-propagated since the last
-    fix: :meth:`KalmanFusion.dead_reckoning_until`; None: every row), ``lost`` before the first
-    fix and beyond those horizons (:func:`kfusion.streamhealth.tracking_status`).
+    The row's frame is the last one, so a row is ``tracked`` where its fix was used; otherwise
+    ``bridged`` while the time since the last used fix is at most ``max_bridge_s`` and the row
+    is ``dead_reckoned`` (IMU-propagated since the last fix:
+    :meth:`KalmanFusion.dead_reckoning_until`; None: every row), else ``lost``. Rows where the
+    filter is not ``initialised`` (before the first fix, after a reset) are lost.
     """
     t = np.asarray(t, dtype=float)
     fix_time = np.where(fixed, t, -np.inf)
     last_fix = np.maximum.accumulate(fix_time) if len(t) else fix_time
     since = t - last_fix
-    bridgeable = since <= max_bridge_s
-    if dead_reckoned is not None:
-        bridgeable &= np.asarray(dead_reckoned, dtype=bool)
-    status = np.where(fixed, TRACKED, np.where(bridgeable, BRIDGED, LOST))
-    status = np.where(initialised, status, LOST)
-    return status.astype(str), since
+    status = row_statuses(np.where(initialised, since, np.inf), fixed, max_bridge_s,
+                          dead_reckoned)
+    return status, since
+
+
+def row_statuses(time_since_fix: NDArray[np.float64], fused: NDArray[np.bool_],
+                 max_bridge_s: float, dead_reckoned: NDArray[np.bool_] | None = None
+                 ) -> NDArray[np.str_]:
+    """:func:`kfusion.streamhealth.tracking_status` at each of m rows, right after the row's
+    frame (the last frame is the row's own: ``fused`` (m,) says whether its fix was used).
+
+    Args:
+        time_since_fix: (m,) s from the fix the row goes from (inf: none).
+        fused: (m,) the row's fix was used.
+        max_bridge_s: s.
+        dead_reckoned: (m,) the row is within the dead-reckoning horizon; None: every row.
+    """
+    reckoned = (np.ones(len(fused), dtype=bool) if dead_reckoned is None
+                else np.asarray(dead_reckoned, dtype=bool))
+    rows = zip(np.asarray(time_since_fix, dtype=float).tolist(),
+               np.asarray(fused, dtype=bool).tolist(), reckoned.tolist(), strict=True)
+    return np.array([tracking_status(since, last_fused, fix_timeout_s=FIX_TIMEOUT_S,
+                                     max_bridge_s=max_bridge_s,
+                                     beyond_dead_reckoning=not reckoning)
+                     for since, last_fused, reckoning in rows], dtype=str)
 
 
 def point_estimates(x: NDArray[np.float64], P: NDArray[np.float64],

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kfusion.conventions import BRIDGED, LOST, TRACKED
+from kfusion.conventions import BRIDGED, TRACKED
 from kfusion.kalman.batch import (
     _RowRecorder,
     apply_monitor,
@@ -52,6 +52,7 @@ from kfusion.kalman.batch import (
     position_covariances,
     process_recording,
     resolve_parameters,
+    row_statuses,
     status_from_fixes,
 )
 from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, USED_OUTCOMES, UpdateOutcome
@@ -168,19 +169,20 @@ def initialised_segments(outcome: NDArray[np.str_], initialised: NDArray[np.bool
     return segments
 
 
-def smoother_status(t: NDArray[np.float64], fixed: NDArray[np.bool_], max_bridge_s: float
-                    ) -> NDArray[np.str_]:
-    """Smoother status per row: ``tracked`` at used fixes; ``lost`` before the first fix; in a
-    gap between fixes ``bridged`` where the nearest fix is at most ``max_bridge_s`` away (else
-    ``lost``); after the last fix ``bridged`` up to ``max_bridge_s`` after it, then ``lost``."""
+def smoother_status(t: NDArray[np.float64], fixed: NDArray[np.bool_], max_bridge_s: float,
+                    dead_reckoned: NDArray[np.bool_] | None = None) -> NDArray[np.str_]:
+    """Smoother status per row: the status rule (:func:`kfusion.streamhealth.tracking_status`)
+    with the distance to the nearest used fix either side as the time since the fix (the
+    smoother has the fixes after a row too): ``tracked`` at used fixes; ``lost`` before the
+    first fix (the forward pass had no state there) and in a gap the IMU did not cover (not
+    ``dead_reckoned``; None: every row is); in a gap between fixes ``bridged`` where the
+    nearest fix is at most ``max_bridge_s`` away (else ``lost``); after the last fix
+    ``bridged`` up to ``max_bridge_s`` after it, then ``lost``."""
     t = np.asarray(t, dtype=float)
     fixed = np.asarray(fixed, dtype=bool)
     last = np.maximum.accumulate(np.where(fixed, t, -np.inf))
-    nearest = nearest_fix_distance(t, fixed)
-    status = np.where(nearest <= max_bridge_s, BRIDGED, LOST)
-    status = np.where(fixed, TRACKED, status)
-    status = np.where(np.isfinite(last), status, LOST)
-    return status.astype(str)
+    distance = np.where(np.isfinite(last), nearest_fix_distance(t, fixed), np.inf)
+    return row_statuses(distance, fixed, max_bridge_s, dead_reckoned)
 
 
 def nearest_fix_distance(t: NDArray[np.float64], fixed: NDArray[np.bool_]
@@ -281,8 +283,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     filtered_status, since = status_from_fixes(t, fixed, recorder.initialised,
                                                params.max_bridge_s, recorder.dead_reckoned)
     # a gap the IMU did not cover (the forward pass's no-IMU rows) is lost for the smoother too
-    smoothed_status = smoother_status(t, fixed, params.max_bridge_s)
-    smoothed_status[~fixed & ~recorder.dead_reckoned] = LOST
+    smoothed_status = smoother_status(t, fixed, params.max_bridge_s, recorder.dead_reckoned)
 
     position, variance = point_estimates(x_filtered, P_filtered, recorder.output_matrix,
                                          recorder.output_offset)
