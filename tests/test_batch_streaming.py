@@ -22,6 +22,7 @@ from kfusion.cli import main
 from kfusion.commands.stream import stream_recording
 from kfusion.conventions import imu_time_to_mocap
 from kfusion.kalman.batch import resolve_parameters
+from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, event_key, imu_event_time, merge_events
 from kfusion.recording import Recording, read_recording, write_recording
 from kfusion.simulate import OcclusionSpec, simulate
 from kfusion.track import read_track
@@ -177,3 +178,18 @@ def test_arrival_orders_move_mocap_frames_ahead_of_the_imu():
                  for stream, index in order]
         inversions = int((np.diff(ranks) < 0).sum())
         assert inversions > 300, name
+
+
+def test_merge_order_by_hand():
+    """Stamps (mocap clock) 0, 0.25, 0.5 s with a latency of 0.25 s describe -0.25, 0 and
+    0.25 s: the third sample, stamped after the frame at 0.25 s, ties with it and goes first;
+    the frame at 0.125 s goes between the second and third samples."""
+    events = merge_events([0.0, 0.25, 0.5], [0.125, 0.25], latency_s=0.25)
+    assert events == [(-0.25, IMU_STREAM, 0), (0.0, IMU_STREAM, 1), (0.125, MOCAP_STREAM, 0),
+                      (0.25, IMU_STREAM, 2), (0.25, MOCAP_STREAM, 1)]
+    assert [event_key(t, stream, 0.25) for t, stream in ((0.5, IMU_STREAM),
+                                                          (0.25, MOCAP_STREAM))] == [
+        (0.25, IMU_STREAM), (0.25, MOCAP_STREAM)]
+    np.testing.assert_array_equal(imu_event_time(np.array([0.0, 0.5]), 0.25), [-0.25, 0.25])
+    assert merge_events([0.0, 0.25], [0.125]) == [(0.0, IMU_STREAM, 0), (0.125, MOCAP_STREAM, 0),
+                                                  (0.25, IMU_STREAM, 1)]
