@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from kfusion.conventions import BRIDGED, LOST
 from kfusion.kalman.events import IMU_STREAM, merge_events
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
+from kfusion.kalman.model import output_covariance, output_point
 from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
 from kfusion.monitor import ConsistencyMonitor, MonitorParameters, MonitorReport
 from kfusion.recording import Recording
@@ -190,15 +191,19 @@ def point_estimates(x: NDArray[np.float64], P: NDArray[np.float64],
 
     Variances, not standard deviations: the monitor's scale and the rivals' variance are added
     before the one square root, in the order the Tracker uses, so both give the same bits."""
-    position = np.einsum("mij,mj->mi", output_matrix, x) + output_offset
+    position = np.array([output_point(H, state, offset) for H, state, offset
+                         in zip(output_matrix, x, output_offset, strict=True)]).reshape(-1, 3)
     variance = np.diagonal(position_covariances(P, output_matrix), axis1=1, axis2=2)
     return position, variance
 
 
 def position_covariances(P: NDArray[np.float64], output_matrix: NDArray[np.float64]
                          ) -> NDArray[np.float64]:
-    """Rigid-body point covariance ``H P H^T`` per row (m, 3, 3) from (m, n, n) and (m, 3, n)."""
-    return np.einsum("mij,mjk,mlk->mil", output_matrix, P, output_matrix)
+    """Rigid-body point covariance ``H P H^T`` per row (m, 3, 3) from (m, n, n) and (m, 3, n)
+    (:func:`kfusion.kalman.model.output_covariance`, row by row: the filter's own order of
+    operations)."""
+    return np.array([output_covariance(H, covariance) for H, covariance
+                     in zip(output_matrix, P, strict=True)]).reshape(-1, 3, 3)
 
 
 def apply_monitor(status: NDArray[np.str_], variance: NDArray[np.float64],
@@ -255,7 +260,8 @@ class _RowRecorder:
             self.output_matrix[row] = H
             self.output_offset[row] = offset
             if self.monitor is not None:
-                widened = self.monitor.cover_rivals(outcome.t, H @ fusion._kf.x + offset,
+                widened = self.monitor.cover_rivals(outcome.t,
+                                                    output_point(H, fusion._kf.x, offset),
                                                     np.zeros((3, 3)))
                 self.rival_variance[row] = np.diag(widened)
 

@@ -456,8 +456,8 @@ class KalmanFusion:
                               np.asarray(quaternion), np.full(P.shape, np.nan), LOST, math.inf,
                               self._last_nis)
         H, offset = self._output_map(quaternion)
-        position = H @ x + offset
-        position_covariance = H @ P @ H.T
+        position = model.output_point(H, x, offset)
+        position_covariance = model.output_covariance(H, P)
         since = t - self._last_fix if self._last_fix is not None else math.inf
         status = streamhealth.tracking_status(
             since, self._last_frame_fused, fix_timeout_s=streamhealth.FIX_TIMEOUT_S,
