@@ -22,11 +22,13 @@ from kfusion.cli import main
 from kfusion.commands.stream import stream_recording
 from kfusion.conventions import imu_time_to_mocap
 from kfusion.datasets import broad_excerpt
+from kfusion.kalman import KalmanFusion, KalmanParameters, run_filter
 from kfusion.kalman.batch import resolve_parameters
 from kfusion.recording import (
     ImuSamples,
     MocapFrames,
     Recording,
+    RecordingInfo,
     read_recording,
     write_recording,
 )
@@ -239,3 +241,25 @@ def test_real_data_kfusion_track_equals_the_tracker(tmp_path, capsys):
     np.testing.assert_array_equal(rows["std"], batch.std)
     assert tracker.health.replays > len(recording.mocap) // 2  # samples arrived behind frames
     capsys.readouterr()
+
+
+def test_the_latency_moves_imu_samples_in_time():
+    """Mutation guard: the latency must really move the samples (the batch driver and the
+    Tracker would still agree with each other if both ignored it). Stamps 0, 0.25, 0.5 s with a
+    0.25 s latency are fused at -0.25, 0 and 0.25 s: all three before the frame at 0.25 s, none
+    late; the filter's state time after the third is 0.25 s."""
+    zeros = np.zeros((3, 3))
+    gravity = np.array([0.0, -9.81, 0.0])
+    recording = Recording(
+        imu=ImuSamples(t=np.array([0.0, 0.25, 0.5]), accelerometer=np.tile(-gravity, (3, 1)),
+                       gyroscope=zeros),
+        mocap=MocapFrames(t=np.array([0.125, 0.25]), position=np.zeros((2, 3)),
+                          quaternion=np.tile([1.0, 0.0, 0.0, 0.0], (2, 1))),
+        info=RecordingInfo(imu_to_body=np.array([1.0, 0.0, 0.0, 0.0]), gravity=gravity))
+    params = KalmanParameters.from_profiles("mpu9255", None, imu_latency_s=0.25)
+    run = run_filter(recording, params, monitor=None)
+    assert run.counters["predictions"] == 3 and run.counters["imu_late"] == 0
+    assert list(run.outcome) == ["initialised", "accepted"]
+    fusion = KalmanFusion(recording.info.imu_to_body, gravity, params)
+    fusion.predict(0.5, -gravity, np.zeros(3))
+    assert fusion.time == 0.25
