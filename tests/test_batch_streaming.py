@@ -132,17 +132,23 @@ def stream_rows(recording: Recording, tracker: Tracker, order: list[tuple[int, i
     return {"position": position, "std": std, "status": status.astype(str), "since": since}
 
 
+def tracked_with_the_cli(folder, latency: float, tmp_path):
+    """``kfusion track --method kalman --set imu_latency_s=...`` on ``folder``: its rows, the
+    recording as read back and the parameters the command used."""
+    out = tmp_path / "track.csv"
+    assert main(["track", str(folder), "--method", "kalman", "--out", str(out), "--force",
+                 "--set", f"imu_latency_s={latency!r}"]) == 0
+    recording = read_recording(folder)
+    return read_track(out), recording, resolve_parameters(recording, None,
+                                                          {"imu_latency_s": latency})
+
+
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_kfusion_track_equals_the_tracker_in_any_arrival_order(case, tmp_path, capsys):
     imu_rate, mocap_rate, latency, offset, drift = CASES[case]
     folder = write_recording(late_imu_recording(imu_rate, mocap_rate, latency, offset, drift),
                              tmp_path / "recording")
-    out = tmp_path / "track.csv"
-    assert main(["track", str(folder), "--method", "kalman", "--out", str(out), "--force",
-                 "--set", f"imu_latency_s={latency!r}"]) == 0
-    batch = read_track(out)
-    recording = read_recording(folder)
-    params = resolve_parameters(recording, None, {"imu_latency_s": latency})
+    batch, recording, params = tracked_with_the_cli(folder, latency, tmp_path)
     mocap_t = recording.mocap.t
     mapped = imu_time_to_mocap(recording.imu.t, offset, drift)
     # the latency moves IMU stamps past mocap times: some samples stamped after a frame
@@ -227,12 +233,7 @@ def test_real_data_kfusion_track_equals_the_tracker(tmp_path, capsys):
         mocap=MocapFrames(t=mocap.t[keep_mocap], position=mocap.position[keep_mocap],
                           quaternion=mocap.quaternion[keep_mocap])), tmp_path / "broad")
     latency = 0.005
-    out = tmp_path / "track.csv"
-    assert main(["track", str(folder), "--method", "kalman", "--out", str(out), "--force",
-                 "--set", f"imu_latency_s={latency!r}"]) == 0
-    batch = read_track(out)
-    recording = read_recording(folder)
-    params = resolve_parameters(recording, None, {"imu_latency_s": latency})
+    batch, recording, params = tracked_with_the_cli(folder, latency, tmp_path)
     tracker = Tracker.from_recording_info(recording.info, params=params)
     rows = stream_rows(recording, tracker, arrival_orders(recording, latency)["natural"],
                        latency)
