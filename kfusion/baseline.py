@@ -75,17 +75,16 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kfusion.conventions import (
-    BRIDGED,
     LOST,
     MAX_BRIDGE_LIMIT_S,
     QUATERNION_NORM_TOLERANCE,
-    TRACKED,
     integrate_gyroscope,
     matrix_from_wxyz,
     quaternion_multiply,
 )
 from kfusion.guards import real_number, refuse_masked, short_repr
 from kfusion.recording import Recording
+from kfusion.streamhealth import FIX_TIMEOUT_S, tracking_status
 from kfusion.track import TrackResult
 
 METHOD_NAME: Final = "baseline"
@@ -341,7 +340,7 @@ class BaselineEstimate:
     Attributes:
         t: time, s.
         position: (3,) m, global frame; NaN when lost.
-        status: ``tracked``, ``bridged`` or ``lost``.
+        status: ``tracked``, ``bridged`` or ``lost`` (:func:`kfusion.streamhealth.tracking_status`).
         time_since_fix: s since the last visible mocap frame (inf before the first).
     """
 
@@ -534,13 +533,18 @@ class BaselineTracker:
             raise ValueError(f"estimate: expected a time at or after the last event "
                              f"({self._time} s), got {t}")
         since = t - self._last_fix
-        if since == 0.0 and self._fix_position is not None:
-            return BaselineEstimate(t, self._fix_position.copy(), TRACKED, 0.0)
-        if self._state is None or self.offset is None or since > self.params.max_bridge_s:
+        # the status rule shared by every estimator; the paper's method dead-reckons whatever
+        # the IMU does, so no dead-reckoning horizon
+        status = tracking_status(since, self._last_fix == self._last_mocap_t,
+                                 fix_timeout_s=FIX_TIMEOUT_S,
+                                 max_bridge_s=self.params.max_bridge_s)
+        if status != LOST and since == 0.0 and self._fix_position is not None:
+            return BaselineEstimate(t, self._fix_position.copy(), status, 0.0)
+        if status == LOST or self._state is None or self.offset is None:
             return BaselineEstimate(t, np.full(3, np.nan), LOST, float(since))
         self._catch_up()
         position, _ = self._step(self._state, t)
-        return BaselineEstimate(t, position, BRIDGED, float(since))
+        return BaselineEstimate(t, position, status, float(since))
 
     # ---- internals -------------------------------------------------------------------------
 

@@ -56,6 +56,11 @@ interval between samples, at least ``HOLD_MIN_S`` s, at most ``imu_dropout_s``
 simulator a sample held for 0.1 s in fast motion gave errors of 3-8 mm against a 99 % bound
 of 0.4-0.8 mm. 20 ms leaves room for the few ms one stream lags the other."""
 
+FIX_TIMEOUT_S: Final = 0.05
+"""s. Default ``fix_timeout_s`` of :func:`tracking_status`: after a fused fix the status stays
+``tracked`` this long (five frames at 100 Hz) while no newer frame arrives; the Tracker's
+``TrackerOptions.fix_timeout_s`` may change it."""
+
 DEFAULT_MAX_TIME_JUMP_S: Final = 0.25
 """s. Default :class:`TimeGuard` threshold: a stamp this far beyond the newest time of both
 streams is implausible. The streams sample at 100-1000 Hz and one stream's outage leaves the
@@ -97,15 +102,25 @@ def dead_reckoning_until(imu_time: float | None, hold_s: float,
 
 def tracking_status(time_since_fix: float, last_frame_fused: bool, *, fix_timeout_s: float,
                     max_bridge_s: float, beyond_dead_reckoning: bool = False) -> str:
-    """The status rule (``time_since_fix`` is inf before the first fix):
+    """The status rule, the one place it is written. Every estimator uses it: the filter's
+    :meth:`~kfusion.kalman.KalmanFusion.estimate`, the batch driver and the smoother
+    (:func:`kfusion.kalman.batch.status_from_fixes`, :func:`kfusion.kalman.smoother.
+    smoother_status`), the :class:`kfusion.tracker.Tracker` and the paper's baseline.
 
         tracked  if the last frame was fused and time_since_fix <= fix_timeout_s
         lost     if time_since_fix > max_bridge_s, or the time is beyond the dead-reckoning
                  horizon (:func:`dead_reckoning_until`: no IMU to bridge with)
         bridged  otherwise
 
-    (``fix_timeout_s <= max_bridge_s``, so the order of the first two only matters for the
-    IMU: a fused fix is tracked whether or not the IMU is alive.)
+    ``time_since_fix`` (s) runs from the last fused fix; it is inf before the first fix and
+    whenever the estimator has no state to go from (a reset), so those times are lost. The
+    smoother, which also sees the fixes after a row, passes the distance to the nearest fused
+    fix either side. At a row of ``kfusion track`` the last frame is the row's own, so a row is
+    tracked exactly when its fix was used. ``fix_timeout_s`` is :data:`FIX_TIMEOUT_S` unless the
+    Tracker's options change it; ``fix_timeout_s <= max_bridge_s``, so the order of the first
+    two lines only matters for the IMU: a fused fix is tracked whether or not the IMU is
+    alive. Beyond this rule, the consistency monitor (:mod:`kfusion.monitor`) may turn a
+    bridged estimate lost when it finds the IMU model broken.
     """
     if last_frame_fused and time_since_fix <= fix_timeout_s:
         return TRACKED

@@ -69,8 +69,11 @@ Out-of-step streams: each stream must be in time order, but the two may arrive o
 mocap typically lags the IMU by a few ms). The tracker keeps the samples of the last
 ``max_delay_s`` seconds and state checkpoints; a sample older than the newest fused time is
 inserted in time order and the samples after it are fused again from the checkpoint before it.
-The result is bit-identical to pushing everything in time order (IMU before mocap at equal
-times).
+The order is the batch driver's (:mod:`kfusion.kalman.events`): an IMU sample counts at the time
+it describes, its stamp mapped onto the mocap clock (``imu_time_offset``,
+``imu_clock_drift_ppm``) minus the Kalman parameters' ``imu_latency_s``, and at equal times the
+IMU sample goes first. The result is bit-identical to pushing everything in that order, and to
+``kfusion track`` on the same recording (tests/test_batch_streaming.py).
 """
 
 from __future__ import annotations
@@ -96,16 +99,17 @@ from kfusion.conventions import (
     GRAVITY_MAGNITUDE_RANGE,
     LOST,
     QUATERNION_NORM_TOLERANCE,
-    TRACKED,
     imu_time_to_mocap,
 )
 from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, short_repr
+from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, event_key
 from kfusion.kalman.filter import ACCEPTED, GATED, OCCLUDED, REACQUIRED
 from kfusion.monitor import MonitorReport
 from kfusion.profiles import ImuProfile, imu_profile
 from kfusion.recording import MAX_CLOCK_DRIFT_PPM, RecordingInfo, parse_info
 from kfusion.streamhealth import (
     DEFAULT_MAX_TIME_JUMP_S,
+    FIX_TIMEOUT_S,
     IMPLAUSIBLE,
     REBASE,
     ImuWatch,
@@ -144,8 +148,8 @@ MOCAP_REJECTIONS: Final = (GATED, NON_FINITE, BAD_QUATERNION, OUT_OF_ORDER, DUPL
 METHODS: Final = ("kalman", "baseline")
 DEFAULT_CONFIDENCE: Final = 0.99
 
-_IMU: Final = 0
-_MOCAP: Final = 1
+_IMU: Final = IMU_STREAM
+_MOCAP: Final = MOCAP_STREAM
 
 
 # ---------------------------------------------------------------------------------------------
@@ -290,7 +294,7 @@ class TrackerOptions:
             (:class:`kfusion.streamhealth.TimeGuard`). > 0.
     """
 
-    fix_timeout_s: float = 0.05
+    fix_timeout_s: float = FIX_TIMEOUT_S
     max_delay_s: float = 0.1
     checkpoint_interval_s: float = 0.02
     accelerometer_range: float | None = None
@@ -442,6 +446,7 @@ class _Reading:
 class _Estimator(Protocol):
     method: str
     has_covariance: bool
+    imu_latency_s: float
     max_bridge_s: float
     imu_dropout_s: float
     accelerometer_range: float
@@ -471,6 +476,7 @@ class _BaselineEstimator:
 
     method = "baseline"
     has_covariance = False
+    imu_latency_s = 0.0  # the paper's method has none
 
     def __init__(self, imu_to_body: NDArray, params: Any, accelerometer_range: float) -> None:
         from kfusion.baseline import BaselineTracker
@@ -558,6 +564,7 @@ class _KalmanEstimator:
         self.max_bridge_s = float(params.max_bridge_s)
         self.imu_dropout_s = float(params.imu_dropout_s)
         self.accelerometer_range = float(params.accelerometer_range)
+        self.imu_latency_s = float(params.imu_latency_s)
 
     def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
         self._fusion.predict(t, accelerometer, gyroscope)
@@ -921,12 +928,14 @@ class Tracker:
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (accelerometer, gyroscope))
         saturated = max(abs(a0), abs(a1), abs(a2)) >= self._saturation_level
-        if self._fuse((t, _IMU, accelerometer, (g0, g1, g2), saturated)) is None:
+        # fused at the time the sample describes (kfusion.kalman.events: stamp - latency)
+        time, _ = event_key(t, _IMU, self._estimator.imu_latency_s)
+        if self._fuse((time, _IMU, accelerometer, (g0, g1, g2), saturated, t)) is None:
             return self._reject(stream, TOO_LATE)
         interval = t - stream.last_t  # inf for the first sample (after a reset too)
         if interval != math.inf and interval > stream.longest_interval_s:
             stream.longest_interval_s = interval
-        self._watch.imu(t)
+        self._watch.imu(time)
         stream.last_t = t
         stream.last_values = (accelerometer, gyroscope)
         stream.accepted += 1
@@ -976,7 +985,7 @@ class Tracker:
                 return self._reject(stream, BAD_QUATERNION)
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (point, rotation))
-        reason = self._fuse((t, _MOCAP, point, rotation, False))
+        reason = self._fuse((t, _MOCAP, point, rotation, False, t))
         if reason is None:
             return self._reject(stream, TOO_LATE)
         stream.last_t, stream.last_values = t, (point, rotation)
@@ -1033,6 +1042,13 @@ class Tracker:
                         velocity=_read_only(reading.velocity),
                         covariance=_read_only(reading.covariance), std=_read_only(reading.std),
                         status=status, time_since_fix=since, method=self.method)
+
+    @property
+    def imu_latency_s(self) -> float:
+        """s subtracted from an IMU sample's stamp (on the mocap clock) to get the time it
+        describes (:func:`kfusion.kalman.events.imu_event_time`): the Kalman parameters'
+        ``imu_latency_s``, 0 for the baseline."""
+        return self._estimator.imu_latency_s
 
     @property
     @_locked
@@ -1216,9 +1232,11 @@ class Tracker:
     def _process(self, event: tuple) -> str:
         """Run one event (in time order) through the estimator and the bookkeeping.
 
-        ``event`` is ``(t, stream, first, second, saturated)``: accelerometer (3,) array and
+        ``event`` is ``(t, stream, first, second, saturated, stamp)``: ``(t, stream)`` is the
+        event's :func:`kfusion.kalman.events.event_key` (t: the time the event describes on the
+        mocap clock, an IMU sample's stamp minus the latency), then accelerometer (3,) array and
         gyroscope 3-tuple for the IMU, position (3,) and quaternion (4,) (NaN when absent) for
-        the mocap.
+        the mocap, and the stamp on the mocap clock (what the estimator is given).
 
         Inputs are validated, so over a normal interval a finite state stays finite. After a
         long interval (a dropout) or a saturated sample the model may overflow; the state is
@@ -1267,7 +1285,7 @@ class Tracker:
     def _apply(self, event: tuple) -> str:
         """The estimator's step for one event; its outcome (``accepted`` for an IMU sample)."""
         if event[1] == _IMU:
-            self._estimator.predict(event[0], event[2], event[3])
+            self._estimator.predict(event[5], event[2], event[3])  # its stamp
             return ACCEPTED
         position, quaternion = event[2], event[3]
         return self._estimator.update(event[0], None if math.isnan(position[0]) else position,
@@ -1293,10 +1311,7 @@ class Tracker:
 
     def _status_at(self, t: float) -> str:
         book = self._book
-        since = t - book.fix_time
-        if book.last_frame_fused and since <= self.options.fix_timeout_s:
-            return TRACKED  # fast path of tracking_status
-        return tracking_status(since, book.last_frame_fused,
+        return tracking_status(t - book.fix_time, book.last_frame_fused,
                                fix_timeout_s=self.options.fix_timeout_s,
                                max_bridge_s=self.max_bridge_s,
                                beyond_dead_reckoning=t > self._estimator.dead_reckoning_until())

@@ -474,13 +474,15 @@ def test_estimate_extrapolates_without_changing_the_state():
     fusion.update(0.0, np.zeros(3), IDENTITY)
     before = fusion.snapshot()
     ahead = fusion.estimate(0.016)
-    assert ahead.status == BRIDGED and ahead.time_since_fix == pytest.approx(0.016)
+    # the status rule (kfusion.streamhealth.tracking_status, the Tracker's too): tracked while
+    # the last frame was fused and is at most fix_timeout_s (0.05 s) old
+    assert ahead.status == TRACKED and ahead.time_since_fix == pytest.approx(0.016)
     # held sample: x = 1/2 a t^2 = 6.4e-5 m
     assert ahead.position[0] == pytest.approx(0.5 * 0.5 * 0.016 ** 2, abs=1e-15)
     assert ahead.std[0] > fusion.estimate().std[0]
     # the sample is held for at most 20 ms (kfusion.streamhealth.hold_horizon): later, nothing
-    # is dead-reckoned
-    assert fusion.estimate(0.021).status == LOST
+    # is dead-reckoned, so past fix_timeout_s the estimate is lost, not bridged
+    assert fusion.estimate(0.051).status == LOST
     np.testing.assert_array_equal(fusion.x, before.x)
     np.testing.assert_array_equal(fusion.P, before.P)
     assert fusion.snapshot().orientation == before.orientation

@@ -1,7 +1,8 @@
 """``kfusion stream DIR``: feed a recording to :class:`kfusion.tracker.Tracker` sample by sample.
 
-It shows what safety software calling kfusion in-process would see: the samples go in time order
-(IMU before mocap at equal times) and after every N-th mocap frame one line is printed::
+It shows what safety software calling kfusion in-process would see: the samples go in the fusion
+order of :mod:`kfusion.kalman.events` (the batch driver's) and after every N-th mocap frame one
+line is printed::
 
     t=12.340 s  status=bridged  pos=(0.1234, 1.2345, 0.4567) m  bound99=4.2 mm  since_fix=0.120 s
 
@@ -14,7 +15,8 @@ import argparse
 import math
 from collections.abc import Iterator
 
-from kfusion.conventions import LOST
+from kfusion.conventions import LOST, imu_time_to_mocap
+from kfusion.kalman.events import IMU_STREAM, merge_events
 from kfusion.recording import Recording, read_recording
 from kfusion.tracker import METHODS, Estimate, Tracker
 
@@ -25,8 +27,9 @@ ORDER = 45
 
 def stream_recording(recording: Recording, tracker: Tracker | None = None
                      ) -> Iterator[tuple[int, Estimate]]:
-    """Feed ``recording`` to ``tracker`` in time order; yield ``(mocap row, estimate)`` right
-    after each mocap row (at equal times the IMU sample goes first).
+    """Feed ``recording`` to ``tracker`` in the fusion order of :mod:`kfusion.kalman.events`
+    (an IMU sample at its stamp on the mocap clock minus the latency, the IMU sample first at
+    equal times); yield ``(mocap row, estimate)`` right after each mocap row.
 
     ``tracker`` None builds one from the recording's metadata (Kalman, default parameters).
     """
@@ -35,16 +38,15 @@ def stream_recording(recording: Recording, tracker: Tracker | None = None
     imu, mocap = recording.imu, recording.mocap
     imu_t = imu.t.tolist()
     accelerometer, gyroscope = imu.accelerometer, imu.gyroscope
-    n = len(imu_t)
-    i = 0
-    for row, t in enumerate(mocap.t.tolist()):
-        while i < n and imu_t[i] <= t:
-            tracker.push_imu(imu_t[i], accelerometer[i], gyroscope[i])
-            i += 1
-        visible = bool(mocap.visible[row])
-        tracker.push_mocap(t, mocap.position[row] if visible else None,
-                           mocap.quaternion[row] if visible else None)
-        yield row, tracker.estimate(t)  # "now" is the frame's time on the recording's clock
+    mapped = imu_time_to_mocap(imu.t, *tracker.imu_clock).tolist()
+    for t, stream, index in merge_events(mapped, mocap.t.tolist(), tracker.imu_latency_s):
+        if stream == IMU_STREAM:
+            tracker.push_imu(imu_t[index], accelerometer[index], gyroscope[index])
+            continue
+        visible = bool(mocap.visible[index])
+        tracker.push_mocap(t, mocap.position[index] if visible else None,
+                           mocap.quaternion[index] if visible else None)
+        yield index, tracker.estimate(t)  # "now" is the frame's time on the recording's clock
 
 
 def format_estimate(estimate: Estimate, confidence: float = 0.99) -> str:

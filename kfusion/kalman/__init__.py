@@ -16,7 +16,8 @@ Modules: :mod:`~kfusion.kalman.model` (F, B, Q, H as pure functions),
 :mod:`~kfusion.kalman.orientation` (gyroscope integration with a learned bias),
 :mod:`~kfusion.kalman.filter` (the streaming class), :mod:`~kfusion.kalman.batch` (recording
 runs), :mod:`~kfusion.kalman.smoother` (RTS with the control input),
-:mod:`~kfusion.kalman.reference` (the same equations in plain numpy, for cross-checks).
+:mod:`~kfusion.kalman.reference` (the same equations in plain numpy, for cross-checks),
+:mod:`~kfusion.kalman.events` (the event-merge policy the batch driver and the Tracker share).
 """
 
 from kfusion.kalman.batch import FilterRun, filter_recording, run_filter

@@ -1,8 +1,9 @@
 """Run the streaming filter over a whole recording: :func:`filter_recording` (method ``kalman``).
 
-Events are merged in time order; at equal timestamps the IMU sample comes first, then the mocap
-frame. The output has one row per mocap row (same t): the estimate right after that row was
-processed.
+Events are merged by :mod:`kfusion.kalman.events` (the one policy the Tracker uses too): in time
+order on the mocap clock, an IMU sample at its stamp minus ``imu_latency_s``, and at equal times
+the IMU sample first, then the mocap frame. The output has one row per mocap row (same t): the
+estimate right after that row was processed.
 """
 
 from __future__ import annotations
@@ -15,11 +16,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kfusion.conventions import BRIDGED, LOST, TRACKED
+from kfusion.conventions import BRIDGED, LOST
+from kfusion.kalman.events import IMU_STREAM, merge_events
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
+from kfusion.kalman.model import output_covariance, output_point
 from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
 from kfusion.monitor import ConsistencyMonitor, MonitorParameters, MonitorReport
 from kfusion.recording import Recording
+from kfusion.streamhealth import FIX_TIMEOUT_S, tracking_status
 from kfusion.track import TrackResult
 
 
@@ -60,41 +64,46 @@ def make_monitor(recording: Recording, params: KalmanParameters,
 def process_recording(recording: Recording, fusion: KalmanFusion,
                       on_row: Callable[[int, UpdateOutcome], None],
                       monitor: ConsistencyMonitor | None = None) -> None:
-    """Feed every IMU sample and mocap row to ``fusion`` in time order (IMU first at equal
-    times) and call ``on_row(row, outcome)`` right after each mocap row. IMU samples after the
-    last mocap row are not fed (no output row would use them). ``monitor`` sees the same events
-    (after the filter)."""
+    """Feed every IMU sample and mocap row to ``fusion`` in the fusion order
+    (:func:`kfusion.kalman.events.merge_events`: by time on the mocap clock, an IMU sample at its
+    stamp minus ``imu_latency_s``, the IMU sample first at equal times) and call
+    ``on_row(row, outcome)`` right after each mocap row. IMU samples after the last mocap row
+    are not fed (no output row would use them). ``monitor`` sees the same events (after the
+    filter).
+
+    The IMU stamps must be on the mocap clock: :func:`kfusion.methods.track_recording` maps
+    them (:func:`kfusion.calibration.on_mocap_clock`)."""
     imu = recording.imu
     mocap = recording.mocap
     stamps = imu.t.tolist()
-    latency = fusion.params.imu_latency_s
     accelerometer = imu.accelerometer.tolist()
     gyroscope = imu.gyroscope.tolist()
     finite: list[bool] = np.logical_and(np.isfinite(imu.accelerometer).all(axis=1),
                                         np.isfinite(imu.gyroscope).all(axis=1)).tolist()
     visible: list[bool] = mocap.visible.tolist()
-    n = len(stamps)
-    i = 0
-    for row, t in enumerate(mocap.t.tolist()):
-        while i < n and stamps[i] - latency <= t:
-            stamp = stamps[i]
-            if finite[i] and (fusion._imu_stamp is None or stamp > fusion._imu_stamp):
-                f, omega = accelerometer[i], gyroscope[i]
+    events = merge_events(stamps, mocap.t.tolist(), fusion.params.imu_latency_s)
+    while events and events[-1][1] == IMU_STREAM:
+        events.pop()
+    for t, stream, index in events:
+        if stream == IMU_STREAM:
+            stamp = stamps[index]
+            if finite[index] and (fusion._imu_stamp is None or stamp > fusion._imu_stamp):
+                f, omega = accelerometer[index], gyroscope[index]
                 fusion._predict_valid(stamp, (f[0], f[1], f[2]), (omega[0], omega[1], omega[2]))
             else:  # the public path rejects, skips or raises with its message
-                fusion.predict(stamp, accelerometer[i], gyroscope[i])
+                fusion.predict(stamp, accelerometer[index], gyroscope[index])
             if monitor is not None:
-                monitor.imu(stamp, accelerometer[i], gyroscope[i])
-            i += 1
-        position = mocap.position[row].copy() if visible[row] else None
+                monitor.imu(stamp, accelerometer[index], gyroscope[index])
+            continue
+        position = mocap.position[index].copy() if visible[index] else None
         prior = fusion.estimate(t) if monitor is not None and monitor.has_gated_fix else None
         if position is not None:
-            outcome = fusion._update_valid(t, position, mocap.quaternion[row].copy())
+            outcome = fusion._update_valid(t, position, mocap.quaternion[index].copy())
         else:
             outcome = fusion.update(t, None, None)
         if monitor is not None:
             monitor.mocap(t, position, outcome, fusion, prior)
-        on_row(row, outcome)
+        on_row(index, outcome)
 
 
 @dataclass(frozen=True)
@@ -134,56 +143,84 @@ def status_from_fixes(t: NDArray[np.float64], fixed: NDArray[np.bool_], initiali
                       NDArray[np.bool_], max_bridge_s: float,
                       dead_reckoned: NDArray[np.bool_] | None = None
                       ) -> tuple[NDArray[np.str_], NDArray[np.float64]]:
-    """Status and time since the last fix at each row.
+    """Status and time since the last fix (s) at each row: the status rule
+    (:func:`kfusion.streamhealth.tracking_status`) at the row's time, right after its frame.
 
-    ``tracked`` where the row's fix was used, ``bridged`` while the time since the last used fix
-    is at most ``max_bridge_s`` and the row is ``dead_reckoned`` (IMU-propagated since the last
-    fix: :meth:`KalmanFusion.dead_reckoning_until`; None: every row), ``lost`` before the first
-    fix and beyond those horizons (:func:`kfusion.streamhealth.tracking_status`).
+    The row's frame is the last one, so a row is ``tracked`` where its fix was used; otherwise
+    ``bridged`` while the time since the last used fix is at most ``max_bridge_s`` and the row
+    is ``dead_reckoned`` (IMU-propagated since the last fix:
+    :meth:`KalmanFusion.dead_reckoning_until`; None: every row), else ``lost``. Rows where the
+    filter is not ``initialised`` (before the first fix, after a reset) are lost.
     """
     t = np.asarray(t, dtype=float)
     fix_time = np.where(fixed, t, -np.inf)
     last_fix = np.maximum.accumulate(fix_time) if len(t) else fix_time
     since = t - last_fix
-    bridgeable = since <= max_bridge_s
-    if dead_reckoned is not None:
-        bridgeable &= np.asarray(dead_reckoned, dtype=bool)
-    status = np.where(fixed, TRACKED, np.where(bridgeable, BRIDGED, LOST))
-    status = np.where(initialised, status, LOST)
-    return status.astype(str), since
+    status = row_statuses(np.where(initialised, since, np.inf), fixed, max_bridge_s,
+                          dead_reckoned)
+    return status, since
+
+
+def row_statuses(time_since_fix: NDArray[np.float64], fused: NDArray[np.bool_],
+                 max_bridge_s: float, dead_reckoned: NDArray[np.bool_] | None = None
+                 ) -> NDArray[np.str_]:
+    """:func:`kfusion.streamhealth.tracking_status` at each of m rows, right after the row's
+    frame (the last frame is the row's own: ``fused`` (m,) says whether its fix was used).
+
+    Args:
+        time_since_fix: (m,) s from the fix the row goes from (inf: none).
+        fused: (m,) the row's fix was used.
+        max_bridge_s: s.
+        dead_reckoned: (m,) the row is within the dead-reckoning horizon; None: every row.
+    """
+    reckoned = (np.ones(len(fused), dtype=bool) if dead_reckoned is None
+                else np.asarray(dead_reckoned, dtype=bool))
+    rows = zip(np.asarray(time_since_fix, dtype=float).tolist(),
+               np.asarray(fused, dtype=bool).tolist(), reckoned.tolist(), strict=True)
+    return np.array([tracking_status(since, last_fused, fix_timeout_s=FIX_TIMEOUT_S,
+                                     max_bridge_s=max_bridge_s,
+                                     beyond_dead_reckoning=not reckoning)
+                     for since, last_fused, reckoning in rows], dtype=str)
 
 
 def point_estimates(x: NDArray[np.float64], P: NDArray[np.float64],
                     output_matrix: NDArray[np.float64], output_offset: NDArray[np.float64]
                     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Rigid-body point ``H x + c`` (m, 3) and its 1-sigma per axis ``sqrt(diag(H P H^T))``
-    (m, 3) from per-row states (m, n), covariances (m, n, n) and output maps."""
-    position = np.einsum("mij,mj->mi", output_matrix, x) + output_offset
-    std = np.sqrt(np.diagonal(position_covariances(P, output_matrix), axis1=1, axis2=2))
-    return position, std
+    """Rigid-body point ``H x + c`` (m, 3) m and its variance per axis ``diag(H P H^T)``
+    (m, 3) m^2 from per-row states (m, n), covariances (m, n, n) and output maps.
+
+    Variances, not standard deviations: the monitor's scale and the rivals' variance are added
+    before the one square root, in the order the Tracker uses, so both give the same bits."""
+    position = np.array([output_point(H, state, offset) for H, state, offset
+                         in zip(output_matrix, x, output_offset, strict=True)]).reshape(-1, 3)
+    variance = np.diagonal(position_covariances(P, output_matrix), axis1=1, axis2=2)
+    return position, variance
 
 
 def position_covariances(P: NDArray[np.float64], output_matrix: NDArray[np.float64]
                          ) -> NDArray[np.float64]:
-    """Rigid-body point covariance ``H P H^T`` per row (m, 3, 3) from (m, n, n) and (m, 3, n)."""
-    return np.einsum("mij,mjk,mlk->mil", output_matrix, P, output_matrix)
+    """Rigid-body point covariance ``H P H^T`` per row (m, 3, 3) from (m, n, n) and (m, 3, n)
+    (:func:`kfusion.kalman.model.output_covariance`, row by row: the filter's own order of
+    operations)."""
+    return np.array([output_covariance(H, covariance) for H, covariance
+                     in zip(output_matrix, P, strict=True)]).reshape(-1, 3, 3)
 
 
-def apply_monitor(status: NDArray[np.str_], std: NDArray[np.float64],
+def apply_monitor(status: NDArray[np.str_], variance: NDArray[np.float64],
                   scale_tables: NDArray[np.float64], allowed: NDArray[np.bool_],
                   horizon_s: NDArray[np.float64], edges_s: tuple[float, ...]
                   ) -> tuple[NDArray[np.str_], NDArray[np.float64], NDArray[np.float64]]:
-    """Bridged rows' std times ``sqrt(scale)`` with ``scale`` the row's monitor table (m, bins)
-    at its horizon (s since the fix), and ``lost`` where the monitor refused to bridge.
-    Returns (status, std, per-row scale)."""
+    """Bridged rows' variance (m, 3) m^2 times ``scale``, the row's monitor table (m, bins) at
+    its horizon (s since the fix), and ``lost`` where the monitor refused to bridge.
+    Returns (status, variance, per-row scale)."""
     bridged = status == BRIDGED
     index = np.minimum(np.searchsorted(np.asarray(edges_s), horizon_s, side="left"),
                        len(edges_s) - 1)
     scale = np.where(bridged, scale_tables[np.arange(len(status)), index], 1.0)
     scale = np.where(np.isfinite(scale), scale, 1.0)
-    std = std * np.sqrt(scale)[:, None]
+    variance = variance * scale[:, None]
     status = np.where(bridged & ~allowed, LOST, status)
-    return status.astype(str), std, scale
+    return status.astype(str), variance, scale
 
 
 class _RowRecorder:
@@ -223,7 +260,8 @@ class _RowRecorder:
             self.output_matrix[row] = H
             self.output_offset[row] = offset
             if self.monitor is not None:
-                widened = self.monitor.cover_rivals(outcome.t, H @ fusion._kf.x + offset,
+                widened = self.monitor.cover_rivals(outcome.t,
+                                                    output_point(H, fusion._kf.x, offset),
                                                     np.zeros((3, 3)))
                 self.rival_variance[row] = np.diag(widened)
 
@@ -250,13 +288,15 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
     process_recording(recording, fusion, recorder.record, watcher)
     status, since = status_from_fixes(recording.mocap.t, recorder.fixed, recorder.initialised,
                                       params.max_bridge_s, recorder.dead_reckoned)
-    position, std = point_estimates(recorder.x, recorder.P, recorder.output_matrix,
-                                    recorder.output_offset)
+    position, variance = point_estimates(recorder.x, recorder.P, recorder.output_matrix,
+                                         recorder.output_offset)
     scale = np.ones(len(status))
     if watcher is not None:
-        status, std, scale = apply_monitor(status, std, recorder.scale_tables, recorder.allowed,
-                                           since, watcher.params.horizon_edges_s)
-        std = np.sqrt(std ** 2 + recorder.rival_variance)
+        status, variance, scale = apply_monitor(status, variance, recorder.scale_tables,
+                                                recorder.allowed, since,
+                                                watcher.params.horizon_edges_s)
+        variance = variance + recorder.rival_variance
+    std = np.sqrt(variance)
     result = TrackResult(t=np.array(recording.mocap.t), position=position, std=std,
                          status=status, time_since_fix=since, method="kalman")
     return FilterRun(result=result, x=recorder.x, P=recorder.P,

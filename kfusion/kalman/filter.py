@@ -18,11 +18,12 @@ the gap RMS of the two fastest trials by about 30 % (measured, before the latenc
 The next sample is known when a predict runs, so this costs no latency.
 
 Any dt works (multi-rate, jittered, dropouts: the covariance grows over the real interval, dt is
-never clamped). At equal timestamps give the IMU sample first, then the mocap frame
-(:func:`kfusion.kalman.filter_recording` does): the fix then lands on a state that holds that
-sample. A sample's time is its timestamp minus ``params.imu_latency_s``; a sample whose time is
-not after the state's (a mocap frame was already fused past it) is kept for the next interval
-without moving the state, and counted as ``imu_late``.
+never clamped). Feed events in the fusion order of :mod:`kfusion.kalman.events` (the batch
+driver and the Tracker do): by time, a sample's time being its timestamp minus
+``params.imu_latency_s`` (:func:`~kfusion.kalman.events.imu_event_time`), and at equal times
+the IMU sample first, then the mocap frame, so that the fix lands on a state that holds that
+sample. A sample whose time is not after the state's (a mocap frame was already fused past it)
+is kept for the next interval without moving the state, and counted as ``imu_late``.
 
 What reaches filterpy is always finite: a NaN/inf IMU sample is rejected and counted without
 touching the state, and a mocap position with any NaN is an occluded frame, which never calls
@@ -94,9 +95,10 @@ from filterpy.kalman import KalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
 from kfusion import streamhealth
-from kfusion.conventions import BRIDGED, LOST, QUATERNION_NORM_TOLERANCE, TRACKED
+from kfusion.conventions import LOST, QUATERNION_NORM_TOLERANCE
 from kfusion.guards import refuse_masked
 from kfusion.kalman import model
+from kfusion.kalman.events import imu_event_time
 from kfusion.kalman.orientation import (
     OrientationState,
     OrientationTracker,
@@ -184,7 +186,8 @@ class FilterStep:
         lever_arm: (3,) lever arm in use (estimated, given, or zeros), m, body frame.
         orientation: (4,) ``q_global_imu`` [w, x, y, z].
         covariance: (n, n) covariance of the state (n = 9, or 12 with the lever-arm states).
-        status: ``tracked``, ``bridged`` or ``lost`` (see :mod:`kfusion.conventions`).
+        status: ``tracked``, ``bridged`` or ``lost``
+            (:func:`kfusion.streamhealth.tracking_status` with its default ``fix_timeout_s``).
         time_since_fix: s since the last accepted fix (inf before the first).
         nis: NIS of the last mocap frame compared (NaN if none).
     """
@@ -226,6 +229,7 @@ class KalmanSnapshot:
     outage_since_fix: bool = False
     last_orientation_fix: float | None = None
     imu_interval: float | None = None
+    last_frame_fused: bool = False
 
 
 def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
@@ -311,6 +315,7 @@ class KalmanFusion:
         self._accelerometer_low_pass: Vector3 | None = None
         self._initialised = False
         self._last_fix: float | None = None
+        self._last_frame_fused = False  # the last mocap frame's fix was fused
         self._last_nis = math.nan
         self._outage_since_fix = False  # an interval without IMU since the last fix
         self._imu_interval: float | None = None  # the last interval between IMU samples, s
@@ -451,15 +456,13 @@ class KalmanFusion:
                               np.asarray(quaternion), np.full(P.shape, np.nan), LOST, math.inf,
                               self._last_nis)
         H, offset = self._output_map(quaternion)
-        position = H @ x + offset
-        position_covariance = H @ P @ H.T
+        position = model.output_point(H, x, offset)
+        position_covariance = model.output_covariance(H, P)
         since = t - self._last_fix if self._last_fix is not None else math.inf
-        if since == 0.0:
-            status = TRACKED
-        elif since <= self.params.max_bridge_s and t <= self.dead_reckoning_until():
-            status = BRIDGED
-        else:
-            status = LOST
+        status = streamhealth.tracking_status(
+            since, self._last_frame_fused, fix_timeout_s=streamhealth.FIX_TIMEOUT_S,
+            max_bridge_s=self.params.max_bridge_s,
+            beyond_dead_reckoning=t > self.dead_reckoning_until())
         return FilterStep(
             t, position, position_covariance, np.sqrt(np.diag(position_covariance)),
             x[model.VELOCITY].copy(), x[model.BIAS].copy(), self._lever_in_use(x),
@@ -493,6 +496,7 @@ class KalmanFusion:
             outage_since_fix=self._outage_since_fix,
             last_orientation_fix=self._last_orientation_fix,
             imu_interval=self._imu_interval,
+            last_frame_fused=self._last_frame_fused,
         )
 
     def restore(self, snapshot: KalmanSnapshot) -> None:
@@ -522,6 +526,7 @@ class KalmanFusion:
         self._outage_since_fix = snapshot.outage_since_fix
         self._last_orientation_fix = snapshot.last_orientation_fix
         self._imu_interval = snapshot.imu_interval
+        self._last_frame_fused = snapshot.last_frame_fused
 
     # ------------------------------------------------------------------ internals
 
@@ -535,7 +540,7 @@ class KalmanFusion:
         f, accelerometer_extra = self._limit(f, params.accelerometer_range,
                                              "accelerometer_saturated")
         omega, gyroscope_extra = self._limit(omega, params.gyroscope_range, "gyroscope_saturated")
-        t = stamp - params.imu_latency_s
+        t = imu_event_time(stamp, params.imu_latency_s)
         if self._imu_time is not None and t - self._imu_time > params.imu_dropout_s:
             self._counters["imu_dropouts"] += 1
         if self._time is not None and t <= self._time and self._imu_time is not None:
@@ -686,6 +691,7 @@ class KalmanFusion:
                       q_global_body: NDArray[np.float64] | None) -> UpdateOutcome:
         self._advance(t)
         self._prior = None
+        self._last_frame_fused = False  # until this frame's fix is fused (_mark_fix)
         if z is None:
             self._counters["occluded"] += 1
             return UpdateOutcome(t, OCCLUDED, math.nan)
@@ -784,6 +790,7 @@ class KalmanFusion:
     def _mark_fix(self, t: float) -> None:
         self._outage_since_fix = False
         self._last_fix = t
+        self._last_frame_fused = True
         self._counters["updates"] += 1
 
     def _initialise(self, t: float, z: NDArray[np.float64], H: NDArray[np.float64],

@@ -174,6 +174,19 @@ def process_noise(
     return Q
 
 
+def output_point(H: NDArray[np.float64], x: NDArray[np.float64],
+                 offset: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The rigid-body point (3,) m from the state (n,): ``H x + c`` (H (3, n) and c (3,) from
+    the filter's output map). The filter, the batch driver and the Tracker all compute it here,
+    in one order of operations, so that they agree to the bit."""
+    return H @ x + offset
+
+
+def output_covariance(H: NDArray[np.float64], P: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The rigid-body point's covariance (3, 3) m^2: ``H P H^T`` (see :func:`output_point`)."""
+    return H @ P @ H.T
+
+
 def measurement_matrix(size: int = BASE_SIZE, R_global_body: ArrayLike | None = None,
                        out: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """H (3, size): ``[I 0 0]``, or ``[I 0 0 -R_global_body]`` with the lever-arm states.

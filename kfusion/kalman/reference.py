@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
+from kfusion.kalman.events import imu_event_time
 from kfusion.kalman.model import (
     IMPLAUSIBLE_SAMPLE,
     LOW_PASS_TIME_CONSTANT,
@@ -96,7 +97,7 @@ class _Reference:
         if np.max(np.abs(omega)) >= SATURATION_FRACTION * params.gyroscope_range:
             omega = np.clip(omega, -params.gyroscope_range, params.gyroscope_range)
             omega_extra = (params.gyroscope_range / 2) ** 2
-        t = stamp - params.imu_latency_s
+        t = imu_event_time(stamp, params.imu_latency_s)
         if not (self.time is not None and t <= self.time and self.sample_time is not None):
             self.advance(t, f, omega)
         self.f, self.omega, self.sample_time = f, omega, t
@@ -247,7 +248,8 @@ class _Reference:
 
 
 def reference_filter(recording: Recording, params: KalmanParameters) -> ReferenceRun:
-    """Run the reference over ``recording`` (events in time order, IMU first at equal times)."""
+    """Run the reference over ``recording`` (events in time order, an IMU sample at
+    :func:`kfusion.kalman.events.imu_event_time`, IMU first at equal times)."""
     filter_ = _Reference(recording, params)
     imu, mocap = recording.imu, recording.mocap
     m, n = len(mocap), filter_.n
@@ -260,7 +262,7 @@ def reference_filter(recording: Recording, params: KalmanParameters) -> Referenc
     visible = mocap.visible
     i = 0
     for row, t in enumerate(mocap.t):
-        while i < len(imu) and imu.t[i] - params.imu_latency_s <= t:
+        while i < len(imu) and imu_event_time(imu.t[i], params.imu_latency_s) <= t:
             if np.isfinite(imu.accelerometer[i]).all() and np.isfinite(imu.gyroscope[i]).all():
                 filter_.sample(float(imu.t[i]), imu.accelerometer[i].astype(float),
                                imu.gyroscope[i].astype(float))

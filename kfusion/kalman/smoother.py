@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kfusion.conventions import BRIDGED, LOST, TRACKED
+from kfusion.conventions import BRIDGED, TRACKED
 from kfusion.kalman.batch import (
     _RowRecorder,
     apply_monitor,
@@ -52,6 +52,7 @@ from kfusion.kalman.batch import (
     position_covariances,
     process_recording,
     resolve_parameters,
+    row_statuses,
     status_from_fixes,
 )
 from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, USED_OUTCOMES, UpdateOutcome
@@ -168,19 +169,20 @@ def initialised_segments(outcome: NDArray[np.str_], initialised: NDArray[np.bool
     return segments
 
 
-def smoother_status(t: NDArray[np.float64], fixed: NDArray[np.bool_], max_bridge_s: float
-                    ) -> NDArray[np.str_]:
-    """Smoother status per row: ``tracked`` at used fixes; ``lost`` before the first fix; in a
-    gap between fixes ``bridged`` where the nearest fix is at most ``max_bridge_s`` away (else
-    ``lost``); after the last fix ``bridged`` up to ``max_bridge_s`` after it, then ``lost``."""
+def smoother_status(t: NDArray[np.float64], fixed: NDArray[np.bool_], max_bridge_s: float,
+                    dead_reckoned: NDArray[np.bool_] | None = None) -> NDArray[np.str_]:
+    """Smoother status per row: the status rule (:func:`kfusion.streamhealth.tracking_status`)
+    with the distance to the nearest used fix either side as the time since the fix (the
+    smoother has the fixes after a row too): ``tracked`` at used fixes; ``lost`` before the
+    first fix (the forward pass had no state there) and in a gap the IMU did not cover (not
+    ``dead_reckoned``; None: every row is); in a gap between fixes ``bridged`` where the
+    nearest fix is at most ``max_bridge_s`` away (else ``lost``); after the last fix
+    ``bridged`` up to ``max_bridge_s`` after it, then ``lost``."""
     t = np.asarray(t, dtype=float)
     fixed = np.asarray(fixed, dtype=bool)
     last = np.maximum.accumulate(np.where(fixed, t, -np.inf))
-    nearest = nearest_fix_distance(t, fixed)
-    status = np.where(nearest <= max_bridge_s, BRIDGED, LOST)
-    status = np.where(fixed, TRACKED, status)
-    status = np.where(np.isfinite(last), status, LOST)
-    return status.astype(str)
+    distance = np.where(np.isfinite(last), nearest_fix_distance(t, fixed), np.inf)
+    return row_statuses(distance, fixed, max_bridge_s, dead_reckoned)
 
 
 def nearest_fix_distance(t: NDArray[np.float64], fixed: NDArray[np.bool_]
@@ -281,33 +283,34 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     filtered_status, since = status_from_fixes(t, fixed, recorder.initialised,
                                                params.max_bridge_s, recorder.dead_reckoned)
     # a gap the IMU did not cover (the forward pass's no-IMU rows) is lost for the smoother too
-    smoothed_status = smoother_status(t, fixed, params.max_bridge_s)
-    smoothed_status[~fixed & ~recorder.dead_reckoned] = LOST
+    smoothed_status = smoother_status(t, fixed, params.max_bridge_s, recorder.dead_reckoned)
 
-    position, std = point_estimates(x_filtered, P_filtered, recorder.output_matrix,
-                                    recorder.output_offset)
+    position, variance = point_estimates(x_filtered, P_filtered, recorder.output_matrix,
+                                         recorder.output_offset)
     if watcher is not None:
-        filtered_status, std, _ = apply_monitor(filtered_status, std, recorder.scale_tables,
-                                                recorder.allowed, since,
-                                                watcher.params.horizon_edges_s)
-        std = np.sqrt(std ** 2 + recorder.rival_variance)
-    filtered = TrackResult(t=t, position=position, std=std, status=filtered_status,
-                           time_since_fix=since, method="kalman")
+        filtered_status, variance, _ = apply_monitor(filtered_status, variance,
+                                                     recorder.scale_tables, recorder.allowed,
+                                                     since, watcher.params.horizon_edges_s)
+        variance = variance + recorder.rival_variance
+    filtered = TrackResult(t=t, position=position, std=np.sqrt(variance),
+                           status=filtered_status, time_since_fix=since, method="kalman")
     status = smoothed_status
-    position, std = point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
-                                    recorder.output_offset)
+    position, variance = point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
+                                         recorder.output_offset)
     holdout = None if monitor is None else holdout_scales(recording, params, monitor)
     if holdout is not None:
         bins = len(holdout.params.horizon_edges_s)
         table = np.broadcast_to(holdout.scale_table(), (m, bins))
         allowed = np.full(m, bridging_allowed(math.sqrt(float(table.max())), holdout.gaps,
                                               holdout.params))
-        status, std, _ = apply_monitor(status, std, table, allowed, nearest_fix_distance(t, fixed),
-                                       holdout.params.horizon_edges_s)
+        status, variance, _ = apply_monitor(status, variance, table, allowed,
+                                            nearest_fix_distance(t, fixed),
+                                            holdout.params.horizon_edges_s)
     if watcher is not None:
         # the forward pass's rival hypotheses (a gated fix, or the prediction a fix replaced
         # after gating) are positions the data left open: the smoothed bound holds them too
-        std = np.sqrt(std ** 2 + recorder.rival_variance)
+        variance = variance + recorder.rival_variance
+    std = np.sqrt(variance)
     return SmootherRun(
         result=TrackResult(t=t, position=position, std=std, status=status,
                            time_since_fix=since, method="smoother"),
