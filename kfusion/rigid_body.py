@@ -167,7 +167,10 @@ class ClusterEstimate:
     Attributes:
         names: (n,) marker names.
         body_positions: (n, 3) positions in the body frame, m.
-        full_frames: number of frames where all n markers were seen.
+        full_frames: number of frames where all n markers were seen and fit the cluster.
+        outlier_frames: frames where all n markers were seen but one missed the first-pass
+            cluster by more than the residual limit (a swapped marker); left out of the shape
+            and of the spread.
         distance_spread: (n(n-1)/2,) standard deviation of each inter-marker distance over the
             full frames, m (a rigid cluster: well under a millimetre).
         distance_range: (n(n-1)/2,) max - min of each inter-marker distance, m.
@@ -177,6 +180,7 @@ class ClusterEstimate:
     names: tuple[str, ...]
     body_positions: NDArray[np.float64]
     full_frames: int
+    outlier_frames: int
     distance_spread: NDArray[np.float64]
     distance_range: NDArray[np.float64]
     pairs: tuple[tuple[str, str], ...]
@@ -187,16 +191,23 @@ class ClusterEstimate:
         return (f"cluster rigidity: inter-marker distance std at most "
                 f"{self.distance_spread[worst] * 1e3:.2f} mm ({'-'.join(self.pairs[worst])}), "
                 f"range at most {self.distance_range.max() * 1e3:.2f} mm over "
-                f"{self.full_frames} frames with all {len(self.names)} markers seen")
+                f"{self.full_frames} frames with all {len(self.names)} markers seen"
+                + (f" ({self.outlier_frames} more left out: a marker off by more than the "
+                   "residual limit)" if self.outlier_frames else ""))
 
 
-def estimate_cluster(names: tuple[str, ...], marker_positions: ArrayLike) -> ClusterEstimate:
+def estimate_cluster(names: tuple[str, ...], marker_positions: ArrayLike, *,
+                     max_residual: float = DEFAULT_MAX_RESIDUAL) -> ClusterEstimate:
     """Estimate the body-frame marker positions (see :func:`mean_shape`) and the cluster's
     rigidity from the frames where all markers are seen.
+
+    Two passes: the shape of all full frames, then again without the full frames whose worst
+    marker misses that shape by more than ``max_residual`` (a swapped or mislabelled marker).
 
     Args:
         names: (n,) marker names, n >= 3.
         marker_positions: (k, n, 3) global positions, m, NaN where occluded.
+        max_residual: m, see :func:`solve_poses`.
 
     Raises:
         ValueError: fewer than 3 markers, no frame with all of them seen, or a collinear cluster.
@@ -215,10 +226,20 @@ def estimate_cluster(names: tuple[str, ...], marker_positions: ArrayLike) -> Clu
         raise ValueError(f"markers {list(names)} are nearly collinear (RMS "
                          f"{line_spread(body) * 1e3:.2f} mm off a line, expected at least "
                          f"{MIN_CLUSTER_SPREAD * 1e3:g} mm): the orientation is undetermined")
+    fits = solve_poses(full, body, max_residual=max_residual)
+    outliers = int(fits.rejected.sum())
+    if outliers:
+        full = full[fits.solved]
+        if len(full) == 0:
+            raise ValueError(f"no frame where all {len(names)} markers {list(names)} fit one "
+                             "rigid cluster; expected at least one")
+        step = max(1, int(np.ceil(len(full) / MAX_SHAPE_FRAMES)))
+        body = mean_shape(full[::step])
     pairs = tuple(combinations(range(len(names)), 2))
     distances = np.stack([np.linalg.norm(full[:, i] - full[:, j], axis=1) for i, j in pairs],
                          axis=1)
     return ClusterEstimate(names=tuple(names), body_positions=body, full_frames=len(full),
+                           outlier_frames=outliers,
                            distance_spread=distances.std(axis=0),
                            distance_range=np.ptp(distances, axis=0),
                            pairs=tuple((names[i], names[j]) for i, j in pairs))

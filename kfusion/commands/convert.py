@@ -212,7 +212,8 @@ def _convert_c3d(args: argparse.Namespace) -> tuple[Recording, list[str]]:
     take = read_c3d_markers(path, names)
     markers = take.markers
     try:
-        cluster = estimate_cluster(markers.names, markers.position)
+        cluster = estimate_cluster(markers.names, markers.position,
+                                   max_residual=args.max_residual * 1e-3)
     except ValueError as error:
         raise ValueError(f"{path.name}: {error}") from None
     poses = solve_poses(markers.position, cluster.body_positions,

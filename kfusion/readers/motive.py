@@ -384,15 +384,16 @@ def read_motive_markers(path: str | Path, names: Sequence[str], *,
         raise _relocated(error, header.data_line, {"t": TIME_HEADER}) from None
     cells = values[:, 1:].reshape(len(values), len(chosen), 3)
     missing: NDArray[np.bool_] = empty[:, 1:].reshape(len(values), len(chosen), 3)
-    bad = np.isinf(cells) | (missing.any(axis=2) & ~missing.all(axis=2))[:, :, None]
+    partial = np.any(missing, axis=2) & ~np.all(missing, axis=2)
+    bad = np.isinf(cells) | partial[:, :, None]
     if bad.any():
         row, marker, axis = np.argwhere(bad)[0]
         raise RecordingError(file, "marker cells partly blank or infinite; expected X, Y, Z all "
                              "numbers, or all blank when occluded", row=int(row) + 1,
                              line=header.data_line + int(row),
                              column=texts[1 + 3 * int(marker) + int(axis)])
-    occluded = missing.all(axis=2)
+    occluded: NDArray[np.bool_] = np.all(missing, axis=2)
     if zero_position_means_occluded:
-        occluded |= (cells == 0).all(axis=2)
+        occluded = occluded | np.all(cells == 0, axis=2)
     position = np.where(occluded[:, :, None], np.nan, cells / divisor)
     return MarkerFrames(t=values[:, 0], names=tuple(names), position=position)
