@@ -43,7 +43,7 @@ SHAPE_ITERATIONS: Final = 3
 
 def fit_pose(body_points: ArrayLike, global_points: ArrayLike
              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Rigid transform ``(R_global_body (3, 3), p (3,))`` minimising ``sum_i |g_i - p - R b_i|^2``.
+    """Rigid transform ``(R_global_body, p)`` minimising ``sum_i |g_i - p - R b_i|^2``.
 
     With centroids ``b_c = mean b_i`` and ``g_c = mean g_i``, the rotation is the Kabsch fit of
     the centred points, ``R = argmin sum_i |(g_i - g_c) - R (b_i - b_c)|^2``, and
@@ -51,12 +51,18 @@ def fit_pose(body_points: ArrayLike, global_points: ArrayLike
 
     Args:
         body_points: (n, 3) marker positions in the body frame, m; n >= 2 (3 for a unique R).
-        global_points: (n, 3) the same markers seen in the global frame, m.
+        global_points: (n, 3) the same markers seen in the global frame, m; or (k, n, 3) for k
+            frames fitted at once.
+
+    Returns:
+        R_global_body (3, 3) and p (3,), m; or (k, 3, 3) and (k, 3).
     """
     body = np.asarray(body_points, dtype=float)
     seen = np.asarray(global_points, dtype=float)
-    body_centroid, seen_centroid = body.mean(axis=0), seen.mean(axis=0)
-    rotation = kabsch(seen - seen_centroid, body - body_centroid)
+    body_centroid = body.mean(axis=0)
+    seen_centroid = seen.mean(axis=-2)
+    centred_body = np.broadcast_to(body - body_centroid, seen.shape)
+    rotation = kabsch(seen - seen_centroid[..., None, :], centred_body)
     return rotation, seen_centroid - rotation @ body_centroid
 
 
@@ -85,8 +91,8 @@ def mean_shape(full_frames: ArrayLike, iterations: int = SHAPE_ITERATIONS
     centred = frames - frames.mean(axis=1, keepdims=True)
     shape = centred[0]
     for _ in range(iterations if len(centred) > 1 else 0):
-        aligned = [frame @ kabsch(shape, frame).T for frame in centred]
-        shape = np.mean(aligned, axis=0)
+        rotations = kabsch(np.broadcast_to(shape, centred.shape), centred)  # (k, 3, 3)
+        shape = np.einsum("kij,knj->ni", rotations, centred) / len(centred)  # mean_k R_k c_k
     shape = shape - shape.mean(axis=0)
     result: NDArray[np.float64] = shape @ kabsch(centred[0], shape).T
     return result
@@ -136,22 +142,22 @@ def solve_poses(marker_positions: ArrayLike, body_positions: ArrayLike, *,
     matrices = np.tile(np.eye(3), (count, 1, 1))
     residual = np.full(count, np.nan)
     rejected = np.zeros(count, dtype=bool)
-    spread_ok: dict[bytes, bool] = {}
-    for frame in np.flatnonzero(visible.sum(axis=1) >= MIN_MARKERS):
-        mask = visible[frame]
-        key = mask.tobytes()
-        if key not in spread_ok:
-            spread_ok[key] = line_spread(body[mask]) >= MIN_CLUSTER_SPREAD
-        if not spread_ok[key]:
-            rejected[frame] = True
+    enough = visible.sum(axis=1) >= MIN_MARKERS
+    # Frames with the same visible markers are fitted together (one batched Kabsch each).
+    patterns, group = np.unique(visible[enough], axis=0, return_inverse=True)
+    frames_with_enough = np.flatnonzero(enough)
+    for index, mask in enumerate(patterns):
+        frames = frames_with_enough[group.ravel() == index]
+        if line_spread(body[mask]) < MIN_CLUSTER_SPREAD:
+            rejected[frames] = True
             continue
-        rotation, origin = fit_pose(body[mask], seen[frame, mask])
-        misses = seen[frame, mask] - origin - body[mask] @ rotation.T
-        residual[frame] = np.sqrt((misses**2).sum(axis=1).max())
-        if residual[frame] > max_residual:
-            rejected[frame] = True
-            continue
-        position[frame], matrices[frame] = origin, rotation
+        points = seen[frames][:, mask]  # (g, m, 3)
+        rotation, origin = fit_pose(body[mask], points)
+        misses = points - origin[:, None, :] - np.einsum("gij,mj->gmi", rotation, body[mask])
+        residual[frames] = np.sqrt((misses**2).sum(axis=2).max(axis=1))
+        good = residual[frames] <= max_residual
+        rejected[frames[~good]] = True
+        position[frames[good]], matrices[frames[good]] = origin[good], rotation[good]
     solved = ~np.isnan(position).any(axis=1)
     quaternion = np.full((count, 4), np.nan)
     if solved.any():

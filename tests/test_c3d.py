@@ -387,3 +387,24 @@ def test_convert_c3d_refuses_to_overwrite_markers_without_force(tmp_path, capsys
     status, _, err = convert(capsys, str(path), "--imu", str(imu), "--markers", "A,B,C",
                              "--out", str(out))
     assert status == 2 and "already holds markers.csv" in err
+
+
+def test_write_c3d_markers_round_trips_within_float32(tmp_path):
+    from kfusion.readers.c3d import write_c3d_markers
+    from kfusion.recording import MarkerFrames
+
+    t = (119 + np.arange(50)) / 120.0  # first frame 120 at 120 Hz: t0 = 119 / 120 s
+    position = true_markers(t)
+    position[5, 2] = np.nan
+    position[7] = np.nan
+    markers = MarkerFrames(t=t, names=LABELS, position=position)
+    path = write_c3d_markers(tmp_path / "out.c3d", markers, up_axis="+Z")
+    take = read_c3d_markers(path, LABELS)
+    assert (take.first_frame, take.rate, take.units) == (120, 120.0, "mm")
+    assert take.gravity == (0.0, 0.0, -9.81) and take.residual_flagged == 5
+    np.testing.assert_allclose(take.markers.t, t, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(np.isnan(take.markers.position), np.isnan(position))
+    np.testing.assert_allclose(take.markers.position, position, atol=1e-6, rtol=0)
+    uneven = MarkerFrames(t=[0.0, 0.01, 0.03], names=LABELS, position=np.zeros((3, 4, 3)))
+    with pytest.raises(ValueError, match=r"expected times t_i = \(F - 1 \+ i\) / rate"):
+        write_c3d_markers(tmp_path / "uneven.c3d", uneven)

@@ -180,3 +180,58 @@ def read_c3d_markers(path: str | Path, names: Sequence[str]) -> C3dMarkers:
     return C3dMarkers(markers=markers, rate=rate, first_frame=first_frame, units=units,
                       labels=labels, gravity=_gravity(parameters),
                       residual_flagged=int(flagged.sum()), zero_filled=int(zeros.sum()))
+
+
+def write_c3d_markers(path: str | Path, markers: MarkerFrames, *, units: str = "mm",
+                      up_axis: str | None = None) -> Path:
+    """Write markers as a C3D file (ezc3d), the inverse of :func:`read_c3d_markers`.
+
+    The times must be frames of one rate on the C3D grid, ``t_i = (F - 1 + i) / rate`` with an
+    integer first frame ``F >= 1``; rate and F are taken from them. Occluded markers are written
+    as (0, 0, 0) with residual -1 (the C3D flag of an invalid point). Coordinates are stored as
+    32-bit floats in ``units`` (0.1 um resolution for mm at a few metres).
+
+    Args:
+        path: the ``.c3d`` file to write.
+        markers: positions, m, NaN where occluded; at least 2 frames.
+        units: ``mm``, ``cm`` or ``m``.
+        up_axis: optional ``POINT:Y_SCREEN`` value such as ``+Z``.
+
+    Raises:
+        ValueError: times not on one frame grid, or an unknown unit.
+    """
+    try:
+        import ezc3d
+    except ImportError:
+        raise ValueError(INSTALL_HINT) from None
+    if units not in METERS_PER_UNIT_DIVISOR:
+        raise ValueError(f"write_c3d_markers: unit {units!r}; expected one of "
+                         f"{list(METERS_PER_UNIT_DIVISOR)}")
+    t = markers.t
+    if len(t) < 2:
+        raise ValueError(f"write_c3d_markers: expected at least 2 frames, got {len(t)}")
+    rate = float((len(t) - 1) / (t[-1] - t[0]))
+    first_frame = int(round(t[0] * rate)) + 1
+    grid = c3d_frame_times(first_frame, len(t), rate)
+    if first_frame < 1 or not np.allclose(t, grid, rtol=0, atol=1e-6 / rate):
+        raise ValueError("write_c3d_markers: expected times t_i = (F - 1 + i) / rate with an "
+                         f"integer first frame F >= 1; got {t[0]!r}..{t[-1]!r} s for "
+                         f"{len(t)} frames")
+    hidden = ~markers.visible  # (k, n)
+    points = np.ones((4, len(markers.names), len(t)))
+    scaled = np.where(hidden[:, :, None], 0.0, markers.position * METERS_PER_UNIT_DIVISOR[units])
+    points[:3] = np.transpose(scaled, (2, 1, 0))
+    residuals = np.where(hidden.T, -1.0, 0.0)[None]
+    content = ezc3d.c3d()
+    content["parameters"]["POINT"]["RATE"]["value"] = [rate]
+    content["parameters"]["POINT"]["LABELS"]["value"] = tuple(markers.names)
+    content["parameters"]["POINT"]["UNITS"]["value"] = [units]
+    if up_axis is not None:
+        content.add_parameter("POINT", "Y_SCREEN", [up_axis])
+    content["data"]["points"] = points
+    content["data"]["meta_points"] = {
+        "residuals": residuals,
+        "camera_masks": np.zeros((7, len(markers.names), len(t)), dtype=bool)}
+    content["header"]["points"]["first_frame"] = first_frame - 1  # ezc3d counts from 0
+    content.write(str(path))
+    return Path(path)
