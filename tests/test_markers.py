@@ -256,3 +256,16 @@ def test_convert_motive_with_markers_writes_markers_csv(tmp_path, capsys):
     expected = markers_in_body_frame(read_motive_csv(TAKE, rigid_body="Forearm"),
                                      recording.markers).positions[0]
     np.testing.assert_allclose(recording.info.markers["Marker1"], expected, atol=1e-15)
+
+
+def test_self_calibration_keeps_the_body_frame_markers():
+    from kfusion.calibration import calibrate_recording
+    from kfusion.recording import info_to_dict
+    from kfusion.simulate import simulate
+
+    recording = simulate("random_reach", seed=0, duration=20.0).recording
+    body = {"A": [0.01, 0.0, 0.0], "B": [0.0, 0.02, 0.0]}
+    recording = dataclasses.replace(recording, info=dataclasses.replace(recording.info,
+                                                                        markers=body))
+    calibration = calibrate_recording(recording)
+    assert info_to_dict(calibration.info)["markers"] == body
