@@ -164,13 +164,6 @@ CSV_CASES = [
 ]
 
 
-@pytest.mark.parametrize(("name", "edit", "pattern"), CSV_CASES, ids=[c[0] for c in CSV_CASES])
-def test_markers_csv_refusals_name_file_row_and_column(folder, name, edit, pattern):
-    edit_markers_csv(folder, edit)
-    with pytest.raises(RecordingError, match=pattern):
-        read_recording(folder)
-
-
 YAML_CASES = [
     ("not a mapping", [1, 2], r"recording\.yaml, key 'markers': expected a non-empty mapping"),
     ("empty", {}, r"key 'markers': expected a non-empty mapping"),
@@ -185,10 +178,15 @@ YAML_CASES = [
      r"recording\.yaml's markers; expected one of \['LEFT', 'R_ELB'\]"),
 ]
 
+CASES = [(f"markers.csv {name}", lambda folder, edit=edit: edit_markers_csv(folder, edit), pattern)
+         for name, edit, pattern in CSV_CASES] + [
+        (f"recording.yaml {name}", lambda folder, value=value: set_markers(folder, value), pattern)
+        for name, value, pattern in YAML_CASES]
 
-@pytest.mark.parametrize(("name", "value", "pattern"), YAML_CASES, ids=[c[0] for c in YAML_CASES])
-def test_yaml_markers_refusals_name_the_key(folder, name, value, pattern):
-    set_markers(folder, value)
+
+@pytest.mark.parametrize(("name", "mutate", "pattern"), CASES, ids=[c[0] for c in CASES])
+def test_marker_refusals_name_file_row_column_or_key(folder, name, mutate, pattern):
+    mutate(folder)
     with pytest.raises(RecordingError, match=pattern):
         read_recording(folder)
 
