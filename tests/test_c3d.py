@@ -346,8 +346,9 @@ def test_convert_c3d_noisy_markers_give_poses_within_noise(tmp_path, capsys):
 @pytest.mark.parametrize(("arguments", "pattern"), [
     (["--markers", "A,B,X"], r"take\.c3d: no marker named 'X'; expected names from "
      r"POINT:LABELS: \['A', 'B', 'C', 'D'\]"),
-    (["--markers", "A,B"], r"command line: --markers names 2 marker\(s\) \['A', 'B'\]; expected 3 "
-     r"or more"),
+    (["--markers", "A,B"], r"command line: 2 marker\(s\) \['A', 'B'\]; expected 3 or more"),
+    (["--max-residual", "5"], r"command line: expected --markers M1,M2,M3\[,\.\.\.\] \(the "
+     r"cluster's markers\) or --body NAME"),
     (["--markers", "A,A,B"], r"command line, key 'markers': marker names \['A', 'A', 'B'\] repeat"),
     (["--markers", "A,,B"], r"command line, key 'markers': marker name '' is not usable"),
     (["--markers", "A,B,C", "--max-residual", "0"], r"--max-residual 0\.0; expected a positive"),
@@ -408,3 +409,35 @@ def test_write_c3d_markers_round_trips_within_float32(tmp_path):
     uneven = MarkerFrames(t=[0.0, 0.01, 0.03], names=LABELS, position=np.zeros((3, 4, 3)))
     with pytest.raises(ValueError, match=r"expected times t_i = \(F - 1 \+ i\) / rate"):
         write_c3d_markers(tmp_path / "uneven.c3d", uneven)
+
+
+def test_convert_c3d_body_picks_the_prefixed_labels(tmp_path, capsys):
+    truth = true_markers(frame_times(40))
+    path = write_c3d(tmp_path / "bodies.c3d", truth,
+                     labels=("Forearm:A", "Forearm:B", "Forearm:C", "Other:A"))
+    imu = write_imu(tmp_path / "imu_in.csv")
+    status, _, err = convert(capsys, str(path), "--imu", str(imu), "--body", "Forearm",
+                             "--out", str(tmp_path / "rec"))
+    assert (status, err) == (0, ""), err
+    markers = read_markers(tmp_path / "rec" / "markers.csv")
+    assert markers.names == ("Forearm:A", "Forearm:B", "Forearm:C")
+    np.testing.assert_allclose(markers.position, truth[:, :3], atol=1e-6, rtol=0)
+    status, _, err = convert(capsys, str(path), "--imu", str(imu), "--body", "Forearm",
+                             "--markers", "C,A,B", "--out", str(tmp_path / "rec2"))
+    assert status == 0
+    assert read_markers(tmp_path / "rec2" / "markers.csv").names == (
+        "Forearm:C", "Forearm:A", "Forearm:B")
+    status, _, err = convert(capsys, str(path), "--imu", str(imu), "--body", "Arm",
+                             "--out", str(tmp_path / "rec3"))
+    assert status == 2 and err.count("\n") == 1
+    assert "bodies.c3d: no label 'BODY:NAME' with BODY 'Arm'; expected one of the prefixes " \
+        "['Forearm', 'Other'] in POINT:LABELS" in err
+
+
+def test_without_ezc3d_the_message_says_how_to_install(tmp_path, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "ezc3d", None)  # import ezc3d raises ImportError
+    with pytest.raises(RecordingError, match=re.escape(
+            "take.c3d: reading C3D needs ezc3d: pip install 'kfusion[c3d]'")):
+        read_c3d_markers(tmp_path / "take.c3d", LABELS)

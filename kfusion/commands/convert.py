@@ -123,9 +123,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "pose by Kabsch wherever 3 or more of the markers are seen. Needs "
                              "ezc3d (pip install 'kfusion[c3d]').")
     c3d.add_argument("c3d", metavar="FILE.c3d", help="C3D file")
-    c3d.add_argument("--markers", required=True, metavar="M1,M2,M3[,...]",
+    c3d.add_argument("--markers", metavar="M1,M2,M3[,...]",
                      help="the cluster's markers, 3 or more (a name matches a POINT:LABELS "
-                     "label, or the part after its last ':')")
+                     "label, or the part after its last ':'); required without --body")
+    c3d.add_argument("--body", metavar="NAME",
+                     help="one body's markers: the labels NAME:... (all of them, or those of "
+                     "--markers)")
     _add_imu_options(c3d, "rigid body (origin at the markers' centroid, axes the global axes "
                      "at the first frame where all markers are seen)")
     c3d.add_argument("--gravity", nargs=3, type=float, metavar=("GX", "GY", "GZ"),
@@ -202,15 +205,19 @@ def _convert_motive(args: argparse.Namespace) -> tuple[Recording, list[str]]:
 
 def _convert_c3d(args: argparse.Namespace) -> tuple[Recording, list[str]]:
     path = Path(args.c3d)
-    names = parse_marker_names(args.markers)
-    if len(names) < MIN_MARKERS:
-        raise ValueError(f"{COMMAND_LINE}: --markers names {len(names)} marker(s) {list(names)}; "
-                         f"expected {MIN_MARKERS} or more to solve a rigid body's pose")
+    if args.markers is None and args.body is None:
+        raise ValueError(f"{COMMAND_LINE}: expected --markers M1,M2,M3[,...] (the cluster's "
+                         "markers) or --body NAME (the labels NAME:...)")
+    names = None if args.markers is None else parse_marker_names(args.markers)
     if not args.max_residual > 0:
         raise ValueError(f"{COMMAND_LINE}: --max-residual {args.max_residual!r}; expected a "
                          "positive number of mm")
-    take = read_c3d_markers(path, names)
+    take = read_c3d_markers(path, names, body=args.body)
     markers = take.markers
+    if len(markers.names) < MIN_MARKERS:
+        raise ValueError(f"{COMMAND_LINE}: {len(markers.names)} marker(s) "
+                         f"{list(markers.names)}; expected {MIN_MARKERS} or more to solve a rigid "
+                         "body's pose")
     try:
         cluster = estimate_cluster(markers.names, markers.position,
                                    max_residual=args.max_residual * 1e-3)

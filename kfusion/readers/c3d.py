@@ -125,13 +125,28 @@ def _load(path: Path) -> dict[str, Any]:
     return content
 
 
-def read_c3d_markers(path: str | Path, names: Sequence[str]) -> C3dMarkers:
+def body_marker_names(file: str, labels: Sequence[str], body: str) -> tuple[str, ...]:
+    """The markers of one body: the labels ``BODY:NAME`` (Vicon's subject prefix, Motive's rigid
+    body), as ``BODY:NAME``. Raises RecordingError listing the prefixes when there are none."""
+    chosen = tuple(label for label in labels if label.rpartition(":")[0] == body)
+    if not chosen:
+        prefixes = sorted({label.rpartition(":")[0] for label in labels if ":" in label})
+        raise RecordingError(file, f"no label 'BODY:NAME' with BODY {body!r}; expected one of "
+                             f"the prefixes {prefixes} in POINT:LABELS")
+    return chosen
+
+
+def read_c3d_markers(path: str | Path, names: Sequence[str] | None = None, *,
+                     body: str | None = None) -> C3dMarkers:
     """Read the named markers of a C3D file (see the module docstring for the conventions).
 
     Args:
         path: the ``.c3d`` file.
         names: marker names, each matching a label exactly or the part after its last ``:``
-            (``M1`` finds ``Forearm:M1``); the returned markers keep these names.
+            (``M1`` finds ``Forearm:M1``); the returned markers keep these names. With
+            ``body``, a name ``N`` means the label ``BODY:N``; without names, every
+            ``BODY:...`` label is read.
+        body: optional label prefix naming one body (``Forearm`` for ``Forearm:M1``, ...).
 
     Raises:
         RecordingError: one line naming the file and the parameter, label or frame at fault;
@@ -144,6 +159,11 @@ def read_c3d_markers(path: str | Path, names: Sequence[str]) -> C3dMarkers:
     points = np.asarray(content["data"]["points"], dtype=float)  # (4, n, k)
     count = points.shape[2] if points.ndim == 3 else 0
     labels = _labels(parameters, points.shape[1] if points.ndim == 3 else 0)
+    if body is not None:
+        names = [f"{body}:{name}" for name in names] if names is not None else \
+            list(body_marker_names(file, labels, body))
+    if names is None:
+        raise ValueError("read_c3d_markers: expected names, a body, or both")
     indices = match_markers(file, names, labels, "POINT:LABELS")
     if count == 0:
         raise RecordingError(file, "no point frames; expected at least one frame")
