@@ -120,8 +120,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(POINT:UNITS converted to m; frame i at (first_frame - 1 + i) / "
                              "rate s; residual < 0 or exactly 0, 0, 0 is occluded) and an IMU "
                              "file in the imu.csv layout on the same clock. Solves the rigid-body "
-                             "pose by Kabsch wherever 3 or more of the markers are seen. Needs "
-                             "ezc3d (pip install 'kfusion[c3d]').")
+                             "pose by Kabsch wherever 3 or more of the markers are seen; the "
+                             "rigid body's origin is the markers' centroid, its axes the global "
+                             "axes at the first frame where all are seen. Needs ezc3d (pip "
+                             "install 'kfusion[c3d]').")
     c3d.add_argument("c3d", metavar="FILE.c3d", help="C3D file")
     c3d.add_argument("--markers", metavar="M1,M2,M3[,...]",
                      help="the cluster's markers, 3 or more (a name matches a POINT:LABELS "
@@ -129,8 +131,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     c3d.add_argument("--body", metavar="NAME",
                      help="one body's markers: the labels NAME:... (all of them, or those of "
                      "--markers)")
-    _add_imu_options(c3d, "rigid body (origin at the markers' centroid, axes the global axes "
-                     "at the first frame where all markers are seen)")
+    _add_imu_options(c3d, "rigid body")
     c3d.add_argument("--gravity", nargs=3, type=float, metavar=("GX", "GY", "GZ"),
                      help="gravity in the mocap world, m/s^2 (default: minus the file's "
                      "POINT:Y_SCREEN axis, else z-up 0 0 -9.81 as Vicon and Qualisys)")
