@@ -10,7 +10,14 @@ A recording is a folder holding
   ``lever_arm`` (m, body frame), ``imu_time_offset`` (s) and ``imu_clock_drift_ppm`` (the IMU
   clock: ``t_mocap = (1 + drift * 1e-6) t_imu + offset``, see
   :func:`kfusion.conventions.imu_time_to_mocap`; both default to 0) and ``imu_noise`` (measured
-  noise densities that override the IMU profile's, see :class:`ImuNoise`).
+  noise densities that override the IMU profile's, see :class:`ImuNoise`) and ``markers``
+  (``{NAME: [bx, by, bz]}``: each marker's position in the body frame relative to the rigid-body
+  origin, m);
+* optionally ``markers.csv``: ``t``, then ``NAME_x, NAME_y, NAME_z`` for each marker (s; m in the
+  global frame, on the mocap clock). An empty cell means that marker is occluded in that row; a
+  marker's three cells are all filled or all empty. When ``recording.yaml`` has ``markers``, every
+  marker of ``markers.csv`` must be listed there. Without the file, :attr:`Recording.markers`
+  is None and nothing else changes.
 
 Other files in the folder (``truth.csv`` from the simulator, say) are ignored.
 
@@ -24,10 +31,12 @@ Every validation failure raises :class:`RecordingError` naming the file, row and
 
 from __future__ import annotations
 
+import csv
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -57,6 +66,12 @@ IMU_FILE = "imu.csv"
 MOCAP_FILE = "mocap.csv"
 META_FILE = "recording.yaml"
 TRUTH_FILE = "truth.csv"
+MARKERS_FILE = "markers.csv"
+MARKER_AXES = ("x", "y", "z")
+"""Suffixes of a marker's three columns in ``markers.csv``: ``NAME_x, NAME_y, NAME_z``."""
+MAX_MARKER_NAME_CHARS = 100
+MAX_PLAUSIBLE_MARKER_OFFSET = 2.0
+"""m: a body-frame marker position farther than this from the rigid-body origin looks like mm."""
 
 MAX_PLAUSIBLE_POSITION = 10.0
 """m: a mocap coordinate beyond this looks like millimetres."""
@@ -184,6 +199,72 @@ class MocapFrames:
                             | np.isnan(self.quaternion).any(axis=1)))
 
 
+def marker_columns(names: Sequence[str]) -> list[str]:
+    """The columns of ``markers.csv``: ``["t", "A_x", "A_y", "A_z", "B_x", ...]``."""
+    return ["t"] + [f"{name}_{axis}" for name in names for axis in MARKER_AXES]
+
+
+def marker_name_problem(name: object) -> str | None:
+    """Why ``name`` cannot name a marker (None when it can): a non-empty string of at most
+    :data:`MAX_MARKER_NAME_CHARS` printable characters without commas or quotes and without
+    leading or trailing spaces, so that it is a CSV column prefix and a YAML key as it stands."""
+    if not isinstance(name, str):
+        return f"expected a marker name (a string), got {short_repr(name, 40)}"
+    if not name or len(name) > MAX_MARKER_NAME_CHARS or name != name.strip() \
+            or any(c in name for c in ",\"'") or not name.isprintable():
+        return (f"marker name {short_repr(name, 40)} is not usable; expected 1 to "
+                f"{MAX_MARKER_NAME_CHARS} printable characters without commas, quotes or "
+                "leading/trailing spaces")
+    return None
+
+
+@dataclass(frozen=True)
+class MarkerFrames:
+    """Positions of individual markers (``markers.csv``), read-only arrays.
+
+    Attributes:
+        t: (k,) frame times, s, strictly increasing, on the mocap clock.
+        names: (n,) marker names, unique.
+        position: (k, n, 3) marker positions, m, global frame; NaN where occluded.
+    """
+
+    t: NDArray[np.float64]
+    names: tuple[str, ...]
+    position: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        t = _frozen(self.t, "MarkerFrames.t")
+        position = _frozen(self.position, "MarkerFrames.position")
+        names = tuple(self.names)
+        for name in names:
+            problem = marker_name_problem(name)
+            if problem is not None:
+                raise ValueError(f"MarkerFrames.names: {problem}")
+        if len(set(names)) != len(names) or not names:
+            raise ValueError(f"MarkerFrames.names: expected one or more unique names, got "
+                             f"{short_repr(list(names))}")
+        if t.ndim != 1 or position.shape != (t.shape[0], len(names), 3):
+            raise ValueError(f"MarkerFrames: expected t (k,) and position (k, {len(names)}, 3) "
+                             f"for {len(names)} names; got {t.shape} and {position.shape}")
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "names", names)
+        object.__setattr__(self, "position", position)
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def visible(self) -> NDArray[np.bool_]:
+        """(k, n) True where the marker was seen."""
+        return np.asarray(~np.isnan(self.position).any(axis=2))
+
+    def marker(self, name: str) -> NDArray[np.float64]:
+        """(k, 3) positions of one marker, m (NaN where occluded); KeyError for an unknown name."""
+        if name not in self.names:
+            raise KeyError(f"no marker {name!r}; expected one of {list(self.names)}")
+        return self.position[:, self.names.index(name)]
+
+
 IMU_NOISE_KEYS = ("accelerometer_noise_density", "gyroscope_noise_density")
 """Keys of ``recording.yaml``'s ``imu_noise`` section."""
 MAX_CLOCK_DRIFT_PPM = 10_000.0
@@ -227,6 +308,8 @@ class RecordingInfo:
         imu_time_offset: s, and imu_clock_drift_ppm: the IMU clock model
             (:func:`kfusion.conventions.imu_time_to_mocap`).
         imu_noise: measured noise overriding the profile's, or None.
+        markers: optional marker name -> (3,) position in the body frame relative to the
+            rigid-body origin, m (read-only mapping of read-only arrays).
     """
 
     imu_to_body: NDArray[np.float64]
@@ -237,22 +320,37 @@ class RecordingInfo:
     imu_time_offset: float = 0.0
     imu_clock_drift_ppm: float = 0.0
     imu_noise: ImuNoise | None = None
+    markers: Mapping[str, NDArray[np.float64]] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "imu_to_body", _frozen(self.imu_to_body))
         object.__setattr__(self, "gravity", _frozen(self.gravity))
         if self.lever_arm is not None:
             object.__setattr__(self, "lever_arm", _frozen(self.lever_arm))
+        if self.markers is not None:
+            markers = {}
+            for name, position in self.markers.items():
+                problem = marker_name_problem(name)
+                if problem is not None:
+                    raise ValueError(f"RecordingInfo.markers: {problem}")
+                frozen = _frozen(position, f"RecordingInfo.markers[{name!r}]")
+                if frozen.shape != (3,):
+                    raise ValueError(f"RecordingInfo.markers[{name!r}]: expected shape (3,), got "
+                                     f"{frozen.shape}")
+                markers[name] = frozen
+            object.__setattr__(self, "markers", MappingProxyType(markers))
 
 
 @dataclass(frozen=True)
 class Recording:
-    """One recording: IMU samples, mocap frames and their metadata."""
+    """One recording: IMU samples, mocap frames, their metadata and, when the folder has
+    ``markers.csv``, the individual markers (None otherwise)."""
 
     imu: ImuSamples
     mocap: MocapFrames
     info: RecordingInfo
     source: str | None = field(default=None, compare=False)
+    markers: MarkerFrames | None = None
 
     def with_mocap(self, mocap: MocapFrames) -> Recording:
         """A copy with other mocap frames (for example with artificial gaps cut)."""
@@ -485,7 +583,7 @@ def _vector(file: str, data: dict, key: str, length: int, required: bool = True
 
 
 KNOWN_INFO_KEYS = ("imu_to_body", "gravity", "name", "imu", "lever_arm", "imu_time_offset",
-                   "imu_clock_drift_ppm", "imu_noise")
+                   "imu_clock_drift_ppm", "imu_noise", "markers")
 CALIBRATE_HINT = "estimate it with kfusion calibrate DIR --out DIR/recording.yaml"
 
 
@@ -525,6 +623,34 @@ def _imu_noise(file: str, data: dict) -> ImuNoise | None:
         except RecordingError as error:
             raise RecordingError(file, error.reason, key=f"imu_noise.{key}") from None
     return ImuNoise(**densities)
+
+
+def _marker_positions(file: str, data: dict) -> dict[str, NDArray[np.float64]] | None:
+    """``markers: {NAME: [bx, by, bz]}`` (m, body frame) or None when absent."""
+    section = data.get("markers")
+    if section is None:
+        return None
+    if not isinstance(section, dict) or not section:
+        raise RecordingError(file, "expected a non-empty mapping {NAME: [bx, by, bz]} (m, body "
+                             f"frame), got {short_repr(section)}", key="markers")
+    positions = {}
+    for name in section:
+        problem = marker_name_problem(name)
+        if problem is not None:
+            raise RecordingError(file, problem, key=f"markers.{short_repr(name, 40)}")
+        try:
+            position = _vector(file, section, name, 3, required=False)
+        except RecordingError as error:
+            raise RecordingError(file, error.reason, key=f"markers.{name}") from None
+        if position is None:
+            raise RecordingError(file, "missing; expected a list of 3 numbers (m, body frame)",
+                                 key=f"markers.{name}")
+        if np.linalg.norm(position) > MAX_PLAUSIBLE_MARKER_OFFSET:
+            raise RecordingError(file, f"marker is {np.linalg.norm(position):.4g} from the "
+                                 "rigid-body origin, which looks like mm; expected m (at most "
+                                 f"{MAX_PLAUSIBLE_MARKER_OFFSET:g})", key=f"markers.{name}")
+        positions[name] = position
+    return positions
 
 
 def parse_info(data: object, file: str = META_FILE, *, require_mount: bool = True
@@ -571,7 +697,8 @@ def parse_info(data: object, file: str = META_FILE, *, require_mount: bool = Tru
     return RecordingInfo(imu_to_body=imu_to_body, gravity=gravity, name=data.get("name"),
                          imu=data.get("imu"), lever_arm=lever_arm,
                          imu_time_offset=offset or 0.0, imu_clock_drift_ppm=drift or 0.0,
-                         imu_noise=_imu_noise(file, data))
+                         imu_noise=_imu_noise(file, data),
+                         markers=_marker_positions(file, data))
 
 
 def read_info(path: str | Path, *, require_mount: bool = True) -> RecordingInfo:
@@ -604,8 +731,100 @@ def check_imu_profile(info: RecordingInfo, file: str = META_FILE) -> None:
                              key="imu") from None
 
 
+def _marker_names(path: Path) -> list[str]:
+    """Marker names from the header line of ``markers.csv`` (``t, A_x, A_y, A_z, B_x, ...``)."""
+    if not path.is_file():
+        raise RecordingError(path.name, f"file not found in {path.parent}")
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            header = [cell.strip() for cell in next(csv.reader(handle), [])]
+    except (UnicodeDecodeError, csv.Error) as error:
+        raise RecordingError(path.name, f"cannot be parsed as CSV ({error})") from None
+    expected = "expected t, then NAME_x, NAME_y, NAME_z for each marker"
+    if not header or header[0] != "t":
+        raise RecordingError(path.name, f"first column is {short_repr(header[:1])}; {expected}",
+                             column=header[0] if header else None)
+    if len(header) < 4 or (len(header) - 1) % 3:
+        raise RecordingError(path.name, f"{len(header) - 1} marker columns, not a positive "
+                             f"multiple of 3; {expected}")
+    names: list[str] = []
+    for start in range(1, len(header), 3):
+        name = header[start].rpartition("_")[0]
+        wanted = [f"{name}_{axis}" for axis in MARKER_AXES]
+        found = header[start:start + 3]
+        if found != wanted or not name:
+            column = next((f for f, w in zip(found, wanted, strict=True) if f != w), found[0])
+            raise RecordingError(path.name, f"columns {short_repr(found)}; {expected} (here "
+                                 f"{wanted})", column=column)
+        problem = marker_name_problem(name)
+        if problem is not None:
+            raise RecordingError(path.name, problem, column=header[start])
+        if name in names:
+            raise RecordingError(path.name, f"marker {name!r} appears twice; expected each "
+                                 "marker once", column=header[start])
+        names.append(name)
+    return names
+
+
+def read_markers(path: str | Path, *, zero_position_means_occluded: bool = False
+                 ) -> MarkerFrames:
+    """Read and validate ``markers.csv``. Empty (or NaN) cells are occluded markers; with
+    ``zero_position_means_occluded`` a marker at exactly (0, 0, 0) is occluded too. A marker's
+    three cells partly empty is an error. Raises :class:`RecordingError`."""
+    path = Path(path)
+    names = _marker_names(path)
+    columns = marker_columns(names)
+    table, empty = _read_table(path, columns)
+    values = table.to_numpy()
+    if len(values) == 0:
+        raise RecordingError(path.name, "no frames; expected at least one row")
+    check_times(path.name, values[:, 0], empty[:, 0])
+    cells = values[:, 1:]
+    if np.isinf(cells).any():
+        row, col = np.argwhere(np.isinf(cells))[0]
+        raise RecordingError(path.name, "infinite value; expected a number or an empty cell "
+                             "(occluded)", row=int(row) + 1, column=columns[col + 1])
+    missing = (empty[:, 1:] | np.isnan(cells)).reshape(len(values), len(names), 3)
+    partial = missing.any(axis=2) & ~missing.all(axis=2)
+    if partial.any():
+        row, marker = np.argwhere(partial)[0]
+        axis = int(np.flatnonzero(missing[row, marker])[0])
+        raise RecordingError(path.name, f"marker {names[marker]!r} is partly empty; expected "
+                             "its x, y, z all filled, or all empty when occluded",
+                             row=int(row) + 1, column=columns[1 + 3 * int(marker) + axis])
+    position = cells.reshape(len(values), len(names), 3)
+    occluded = missing.all(axis=2)
+    if zero_position_means_occluded:
+        occluded |= (position == 0).all(axis=2)
+    position = np.where(occluded[:, :, None], np.nan, position)
+    far = np.abs(np.nan_to_num(position)) > MAX_PLAUSIBLE_POSITION
+    if far.any():
+        row, marker, axis = np.argwhere(far)[0]
+        raise RecordingError(path.name, f"position {position[row, marker, axis]:.6g} looks "
+                             f"like mm; expected m (|coordinate| <= {MAX_PLAUSIBLE_POSITION:g} "
+                             "m): divide by 1000", row=int(row) + 1,
+                             column=columns[1 + 3 * int(marker) + int(axis)])
+    return MarkerFrames(t=values[:, 0], names=tuple(names), position=position)
+
+
+def check_marker_names(markers: MarkerFrames, info: RecordingInfo,
+                       file: str = MARKERS_FILE) -> None:
+    """RecordingError unless every marker of ``markers.csv`` has a body-frame position in
+    ``recording.yaml``'s ``markers`` (when that key is given)."""
+    if info.markers is None:
+        return
+    unknown = [name for name in markers.names if name not in info.markers]
+    if unknown:
+        raise RecordingError(file, f"marker {unknown[0]!r} has no body-frame position in "
+                             f"{META_FILE}'s markers; expected one of {list(info.markers)}",
+                             column=f"{unknown[0]}_x")
+
+
 def read_recording(folder: str | Path, *, zero_position_means_occluded: bool = False) -> Recording:
-    """Read and validate a recording folder. Raises :class:`RecordingError` on any fault."""
+    """Read and validate a recording folder. Raises :class:`RecordingError` on any fault.
+
+    ``markers.csv`` is read when present (``zero_position_means_occluded`` applies to it too).
+    """
     folder = Path(folder)
     if not folder.is_dir():
         raise RecordingError(folder, "not a recording folder (expected a directory holding "
@@ -614,7 +833,12 @@ def read_recording(folder: str | Path, *, zero_position_means_occluded: bool = F
     imu = read_imu(folder / IMU_FILE)
     mocap = read_mocap(folder / MOCAP_FILE,
                        zero_position_means_occluded=zero_position_means_occluded)
-    return Recording(imu=imu, mocap=mocap, info=info, source=str(folder))
+    markers = None
+    if (folder / MARKERS_FILE).exists():
+        markers = read_markers(folder / MARKERS_FILE,
+                               zero_position_means_occluded=zero_position_means_occluded)
+        check_marker_names(markers, info)
+    return Recording(imu=imu, mocap=mocap, info=info, source=str(folder), markers=markers)
 
 
 # --------------------------------------------------------------------------------------------
@@ -647,11 +871,24 @@ def info_to_dict(info: RecordingInfo) -> dict:
         data["imu_clock_drift_ppm"] = float(info.imu_clock_drift_ppm)
     if info.imu_noise is not None and info.imu_noise.overrides():
         data["imu_noise"] = info.imu_noise.overrides()
+    if info.markers is not None:
+        data["markers"] = {name: [float(v) for v in position]
+                           for name, position in info.markers.items()}
     return data
 
 
+def write_markers(markers: MarkerFrames, path: str | Path) -> None:
+    """Write ``markers.csv`` (occluded markers as empty cells); round-trips exactly."""
+    _write_csv(Path(path), marker_columns(markers.names),
+               np.column_stack([markers.t, markers.position.reshape(len(markers), -1)]))
+
+
 def write_recording(recording: Recording, folder: str | Path) -> Path:
-    """Write a recording folder (creating it); returns its path. Round-trips exactly."""
+    """Write a recording folder (creating it); returns its path. Round-trips exactly.
+
+    ``markers.csv`` is written when ``recording.markers`` is set; otherwise one left in the
+    folder by an earlier recording is removed, so that the folder reads back as written.
+    """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     imu = recording.imu
@@ -660,6 +897,10 @@ def write_recording(recording: Recording, folder: str | Path) -> Path:
     mocap = recording.mocap
     _write_csv(folder / MOCAP_FILE, MOCAP_COLUMNS,
                np.column_stack([mocap.t, mocap.position, mocap.quaternion]))
+    if recording.markers is not None:
+        write_markers(recording.markers, folder / MARKERS_FILE)
+    else:
+        (folder / MARKERS_FILE).unlink(missing_ok=True)
     atomic_write_text(folder / META_FILE,
                       yaml.safe_dump(info_to_dict(recording.info), sort_keys=False))
     return folder

@@ -62,30 +62,36 @@ def kabsch(vectors_a: ArrayLike, vectors_b: ArrayLike, weights: ArrayLike | None
     reflection). The vectors are used as given (not centred): they are directions, not points.
 
     Args:
-        vectors_a: (n, 3) vectors in frame a.
-        vectors_b: (n, 3) the same vectors in frame b.
-        weights: (n,) non-negative weights (default all 1).
+        vectors_a: (n, 3) vectors in frame a, or (k, n, 3): k independent problems solved at
+            once (one batched SVD; the rigid-body fit of every mocap frame).
+        vectors_b: the same vectors in frame b, same shape.
+        weights: (n,) non-negative weights (default all 1), shared by the k problems.
 
     Returns:
-        R_a_b, shape (3, 3).
+        R_a_b, shape (3, 3), or (k, 3, 3) for stacked input.
     """
     a = np.asarray(vectors_a, dtype=float)
     b = np.asarray(vectors_b, dtype=float)
-    if a.ndim != 2 or a.shape[1:] != (3,) or a.shape != b.shape:
+    if a.ndim not in (2, 3) or a.shape[-1:] != (3,) or a.shape != b.shape:
         raise ValueError(f"kabsch: expected two arrays of shape (n, 3), got {a.shape} and "
-                         f"{b.shape}")
-    if a.shape[0] < 2:
-        raise ValueError(f"kabsch: expected at least 2 vector pairs, got {a.shape[0]}")
+                         f"{b.shape} (or both of shape (k, n, 3))")
+    count = a.shape[-2]
+    if count < 2:
+        raise ValueError(f"kabsch: expected at least 2 vector pairs, got {count}")
     if not (np.isfinite(a).all() and np.isfinite(b).all()):
         raise ValueError("kabsch: expected finite vectors, got NaN or inf")
-    w = np.ones(a.shape[0]) if weights is None else np.asarray(weights, dtype=float)
-    if w.shape != (a.shape[0],) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
-        raise ValueError(f"kabsch: expected {a.shape[0]} non-negative finite weights with a "
+    w = np.ones(count) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (count,) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
+        raise ValueError(f"kabsch: expected {count} non-negative finite weights with a "
                          f"positive sum, got shape {w.shape}")
-    H = (b * w[:, None]).T @ a  # sum_i w_i b_i a_i^T
+    H = np.swapaxes(b * w[:, None], -1, -2) @ a  # sum_i w_i b_i a_i^T
     U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    rotation: NDArray[np.float64] = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    V, Ut = np.swapaxes(Vt, -1, -2), np.swapaxes(U, -1, -2)
+    d = np.sign(np.linalg.det(V @ Ut))
+    d = np.where(d == 0, 1.0, d)
+    # V diag(1, 1, d) scales V's last column by d.
+    scale = np.stack([np.ones_like(d), np.ones_like(d), d], axis=-1)[..., None, :]
+    rotation: NDArray[np.float64] = (V * scale) @ Ut
     return rotation
 
 

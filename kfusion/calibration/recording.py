@@ -195,7 +195,8 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
         imu_time_offset=0.0 if "imu_time_offset" in undetermined else fit.offset,
         imu_clock_drift_ppm=0.0 if "imu_clock_drift_ppm" in undetermined else fit.drift_ppm,
         imu_noise=ImuNoise(accelerometer_noise_density=noise.accelerometer_noise_density,
-                           gyroscope_noise_density=noise.gyroscope_noise_density))
+                           gyroscope_noise_density=noise.gyroscope_noise_density),
+        markers=recording.info.markers)
     return SelfCalibration(correlation=correlation, clock_and_mount=clock_and_mount,
                            specific_force=force, noise=noise, info=info,
                            undetermined=undetermined)

@@ -22,7 +22,7 @@ ORDER = 10
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("folder", metavar="DIR", help="recording folder (imu.csv, mocap.csv, "
-                        "recording.yaml)")
+                        "recording.yaml; markers.csv optional)")
     parser.add_argument("--zeros-occluded", action="store_true",
                         help="read a mocap position of exactly (0, 0, 0) as occluded "
                         "(some exporters write zeros for a lost rigid body); default: off")
@@ -49,7 +49,26 @@ def summarise(recording: Recording) -> str:
             f"occlusion length: min {durations.min():.3f} s, median {np.median(durations):.3f} s,"
             f" max {durations.max():.3f} s"
         )
+    lines.extend(marker_lines(recording))
     return "\n".join(lines)
+
+
+def marker_lines(recording: Recording) -> list[str]:
+    """Summary lines about ``markers.csv`` and ``recording.yaml``'s ``markers`` (none when the
+    recording has neither)."""
+    lines = []
+    markers, positions = recording.markers, recording.info.markers
+    if markers is not None:
+        seen = markers.visible.sum(axis=1)
+        count = len(markers.names)
+        lines.append(
+            f"markers: {count} ({', '.join(markers.names)}) in {len(markers)} frames; all seen in "
+            f"{100 * np.mean(seen == count):.1f} %, 3 or more in {100 * np.mean(seen >= 3):.1f} "
+            f"%, none in {100 * np.mean(seen == 0):.1f} %")
+    if positions is not None:
+        lines.append(f"body-frame marker positions: {len(positions)} in recording.yaml "
+                     f"({', '.join(positions)})")
+    return lines
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,10 +1,18 @@
-"""``kfusion convert {motive,broad} SOURCE --out DIR``: turn a real format into a recording folder.
+"""``kfusion convert {motive,c3d,broad} SOURCE --out DIR``: turn a real format into a recording.
 
 * ``motive TAKE.csv --imu IMU.csv``: an OptiTrack Motive CSV export (one rigid body) plus an IMU
   file in the ``imu.csv`` layout on the same clock. Motive's world is y-up by default, hence the
   default gravity ``[0, -9.81, 0]``. The IMU mount is never guessed: without ``--imu-to-body``
   ``recording.yaml`` has no ``imu_to_body`` and the command prints the next step,
-  ``kfusion calibrate DIR --out DIR/recording.yaml``.
+  ``kfusion calibrate DIR --out DIR/recording.yaml``. With ``--markers A,B,C`` the export's
+  ``Marker`` columns of those names are written to ``markers.csv`` too, and their body-frame
+  positions (relative to Motive's rigid body) to ``recording.yaml``'s ``markers``.
+* ``c3d FILE.c3d --imu IMU.csv --markers M1,M2,M3[,...]``: the named markers of a C3D file
+  (:mod:`kfusion.readers.c3d`). The body frame and the marker positions in it are estimated from
+  the frames where all markers are seen, and the rigid-body pose is solved by Kabsch in each
+  frame where 3 or more are (:mod:`kfusion.rigid_body`); other frames are occluded. Writes
+  ``mocap.csv``, ``markers.csv`` and ``recording.yaml`` with ``markers``; the IMU and the mount
+  are handled as for ``motive``.
 * ``broad FILE.mat``: a BROAD trial; ``--mocap-step 3`` keeps every 3rd mocap frame (~95 Hz).
 
 The files written are read back and validated (as ``kfusion check`` does) before the summary is
@@ -15,32 +23,47 @@ passes it once ``kfusion calibrate`` has written the mount.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from kfusion.commands.check import summarise
-from kfusion.conventions import OPTITRACK_GRAVITY
+from kfusion.conventions import OPTITRACK_GRAVITY, Z_UP_GRAVITY
 from kfusion.profiles import imu_profile
 from kfusion.readers.broad import read_broad
-from kfusion.readers.motive import read_motive_csv
+from kfusion.readers.c3d import read_c3d_markers
+from kfusion.readers.markers import parse_marker_names
+from kfusion.readers.motive import read_motive_csv, read_motive_markers
 from kfusion.recording import (
     IMU_FILE,
+    MARKERS_FILE,
     META_FILE,
     MOCAP_FILE,
     ImuSamples,
+    MarkerFrames,
     MocapFrames,
     Recording,
     info_to_dict,
     parse_info,
     read_imu,
+    read_markers,
     read_mocap,
     read_recording,
     write_recording,
 )
+from kfusion.rigid_body import (
+    DEFAULT_MAX_RESIDUAL,
+    MIN_MARKERS,
+    estimate_cluster,
+    markers_in_body_frame,
+    solve_poses,
+)
 
 NAME = "convert"
-HELP = "Convert an OptiTrack Motive CSV export (plus an IMU file) or a BROAD trial to a recording."
+HELP = ("Convert an OptiTrack Motive CSV export or a C3D file (plus an IMU file), or a BROAD "
+        "trial, to a recording.")
 ORDER = 20
 
 COMMAND_LINE = "command line"
@@ -53,6 +76,20 @@ def _add_output(parser: argparse.ArgumentParser) -> None:
                         help="overwrite a recording already in DIR")
 
 
+def _add_imu_options(parser: argparse.ArgumentParser, body: str) -> None:
+    """The IMU file and the recording.yaml options shared by ``motive`` and ``c3d``."""
+    parser.add_argument("--imu", required=True, metavar="IMU.csv",
+                        help="IMU samples: t, ax, ay, az, gx, gy, gz (s, m/s^2, rad/s)")
+    parser.add_argument("--imu-to-body", nargs=4, type=float, metavar=("W", "X", "Y", "Z"),
+                        help=f"unit quaternion IMU -> {body}, if known (default: left out "
+                        "of recording.yaml; then run kfusion calibrate DIR --out "
+                        "DIR/recording.yaml)")
+    parser.add_argument("--lever-arm", nargs=3, type=float, metavar=("X", "Y", "Z"),
+                        help=f"IMU position in the {body} frame, m (optional)")
+    parser.add_argument("--imu-profile", metavar="NAME",
+                        help="IMU profile name written as recording.yaml's imu (optional)")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     formats = parser.add_subparsers(dest="format", metavar="FORMAT", required=True)
 
@@ -62,26 +99,48 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                 "IMU file in the imu.csv layout (t, ax, ay, az, gx, gy, gz on the "
                                 "mocap clock; s, m/s^2, rad/s).")
     motive.add_argument("take", metavar="TAKE.csv", help="Motive CSV export")
-    motive.add_argument("--imu", required=True, metavar="IMU.csv",
-                        help="IMU samples: t, ax, ay, az, gx, gy, gz (s, m/s^2, rad/s)")
+    _add_imu_options(motive, "rigid body")
     motive.add_argument("--rigid-body", metavar="NAME",
                         help="rigid body to read (default: the only one in the export)")
-    motive.add_argument("--imu-to-body", nargs=4, type=float, metavar=("W", "X", "Y", "Z"),
-                        help="unit quaternion IMU -> rigid body, if known (default: left out "
-                        "of recording.yaml; then run kfusion calibrate DIR --out "
-                        "DIR/recording.yaml)")
     motive.add_argument("--gravity", nargs=3, type=float, metavar=("GX", "GY", "GZ"),
                         default=list(OPTITRACK_GRAVITY),
                         help="gravity in the mocap world, m/s^2 (default: y-up 0 -9.81 0)")
-    motive.add_argument("--lever-arm", nargs=3, type=float, metavar=("X", "Y", "Z"),
-                        help="IMU position in the rigid-body frame, m (optional)")
-    motive.add_argument("--imu-profile", metavar="NAME",
-                        help="IMU profile name written as recording.yaml's imu (optional)")
     motive.add_argument("--name", help="recording name (default: the take file's stem)")
     motive.add_argument("--zeros-occluded", action="store_true",
-                        help="read a rigid-body position of exactly (0, 0, 0) as occluded")
+                        help="read a position of exactly (0, 0, 0) as occluded (rigid body and "
+                        "markers)")
+    motive.add_argument("--markers", metavar="M1,M2,...",
+                        help="also write these markers ('Marker' columns; a name matches a "
+                        "label or the part after its ':') to markers.csv (optional)")
     _add_output(motive)
     motive.set_defaults(_convert=_convert_motive)
+
+    c3d = formats.add_parser("c3d", help="C3D file (markers) + imu.csv-style file",
+                             description="Convert the markers of one rigid cluster in a C3D file "
+                             "(POINT:UNITS converted to m; frame i at (first_frame - 1 + i) / "
+                             "rate s; residual < 0 or exactly 0, 0, 0 is occluded) and an IMU "
+                             "file in the imu.csv layout on the same clock. Solves the rigid-body "
+                             "pose by Kabsch wherever 3 or more of the markers are seen; the "
+                             "rigid body's origin is the markers' centroid, its axes the global "
+                             "axes at the first frame where all are seen. Needs ezc3d (pip "
+                             "install 'kfusion[c3d]').")
+    c3d.add_argument("c3d", metavar="FILE.c3d", help="C3D file")
+    c3d.add_argument("--markers", metavar="M1,M2,M3[,...]",
+                     help="the cluster's markers, 3 or more (a name matches a POINT:LABELS "
+                     "label, or the part after its last ':'); required without --body")
+    c3d.add_argument("--body", metavar="NAME",
+                     help="one body's markers: the labels NAME:... (all of them, or those of "
+                     "--markers)")
+    _add_imu_options(c3d, "rigid body")
+    c3d.add_argument("--gravity", nargs=3, type=float, metavar=("GX", "GY", "GZ"),
+                     help="gravity in the mocap world, m/s^2 (default: minus the file's "
+                     "POINT:Y_SCREEN axis, else z-up 0 0 -9.81 as Vicon and Qualisys)")
+    c3d.add_argument("--max-residual", type=float, default=DEFAULT_MAX_RESIDUAL * 1e3,
+                     metavar="MM", help="a frame whose worst marker misses the fitted cluster by "
+                     "more is left occluded (a swapped marker), mm (default %(default)g)")
+    c3d.add_argument("--name", help="recording name (default: the file's stem)")
+    _add_output(c3d)
+    c3d.set_defaults(_convert=_convert_c3d)
 
     broad = formats.add_parser("broad", help="BROAD trial (.mat)",
                                description="Convert a BROAD trial: gravity [0, 0, -9.81], "
@@ -112,29 +171,96 @@ def next_step(folder: Path) -> str:
             f"if the mount is known), then kfusion check {folder}")
 
 
-def _convert_motive(args: argparse.Namespace) -> Recording:
-    take = Path(args.take)
-    mocap = read_motive_csv(take, rigid_body=args.rigid_body,
-                            zero_position_means_occluded=args.zeros_occluded)
+def _with_imu(args: argparse.Namespace, source: Path, mocap: MocapFrames,
+              gravity: Sequence[float], markers: MarkerFrames | None = None,
+              body_positions: dict[str, list[float]] | None = None) -> Recording:
+    """The recording of ``mocap`` with the ``--imu`` file and the recording.yaml options."""
     imu = read_imu(args.imu)
     check_same_clock(imu, mocap)
     if args.imu_profile is not None:
         imu_profile(args.imu_profile)  # ValueError listing the known profiles
     mount = args.imu_to_body if args.imu_to_body is not None else UNKNOWN_MOUNT_PLACEHOLDER
-    options = {"imu_to_body": mount, "gravity": args.gravity,
-               "name": args.name or take.stem, "imu": args.imu_profile,
-               "lever_arm": args.lever_arm}
+    options = {"imu_to_body": mount, "gravity": list(gravity),
+               "name": args.name or source.stem, "imu": args.imu_profile,
+               "lever_arm": args.lever_arm, "markers": body_positions}
     info = parse_info(options, COMMAND_LINE)
-    return Recording(imu=imu, mocap=mocap, info=info, source=str(take))
+    return Recording(imu=imu, mocap=mocap, info=info, source=str(source), markers=markers)
 
 
-def _convert_broad(args: argparse.Namespace) -> Recording:
-    return read_broad(args.trial, mocap_step=args.mocap_step)
+def _convert_motive(args: argparse.Namespace) -> tuple[Recording, list[str]]:
+    take = Path(args.take)
+    mocap = read_motive_csv(take, rigid_body=args.rigid_body,
+                            zero_position_means_occluded=args.zeros_occluded)
+    if args.markers is None:
+        return _with_imu(args, take, mocap, args.gravity), []
+    markers = read_motive_markers(take, parse_marker_names(args.markers),
+                                  zero_position_means_occluded=args.zeros_occluded)
+    body = markers_in_body_frame(mocap, markers)
+    notes = [f"markers: {len(markers.names)} ({', '.join(markers.names)}); body-frame positions "
+             f"from {body.frames} frames with the rigid body and the marker seen, their spread "
+             f"at most {body.spread.max() * 1e3:.2f} mm (RMS)"]
+    positions = {name: [float(v) for v in position]
+                 for name, position in zip(markers.names, body.positions, strict=True)}
+    return _with_imu(args, take, mocap, args.gravity, markers, positions), notes
+
+
+def _convert_c3d(args: argparse.Namespace) -> tuple[Recording, list[str]]:
+    path = Path(args.c3d)
+    if args.markers is None and args.body is None:
+        raise ValueError(f"{COMMAND_LINE}: expected --markers M1,M2,M3[,...] (the cluster's "
+                         "markers) or --body NAME (the labels NAME:...)")
+    names = None if args.markers is None else parse_marker_names(args.markers)
+    if not args.max_residual > 0:
+        raise ValueError(f"{COMMAND_LINE}: --max-residual {args.max_residual!r}; expected a "
+                         "positive number of mm")
+    take = read_c3d_markers(path, names, body=args.body)
+    markers = take.markers
+    if len(markers.names) < MIN_MARKERS:
+        raise ValueError(f"{COMMAND_LINE}: {len(markers.names)} marker(s) "
+                         f"{list(markers.names)}; expected {MIN_MARKERS} or more to solve a rigid "
+                         "body's pose")
+    try:
+        cluster = estimate_cluster(markers.names, markers.position,
+                                   max_residual=args.max_residual * 1e-3)
+    except ValueError as error:
+        raise ValueError(f"{path.name}: {error}") from None
+    poses = solve_poses(markers.position, cluster.body_positions,
+                        max_residual=args.max_residual * 1e-3)
+    mocap = MocapFrames(t=markers.t, position=poses.position, quaternion=poses.quaternion)
+    if args.gravity is not None:
+        gravity, origin = list(args.gravity), "--gravity"
+    elif take.gravity is not None:
+        gravity, origin = list(take.gravity), "the file's POINT:Y_SCREEN (up axis)"
+    else:
+        gravity, origin = list(Z_UP_GRAVITY), ("no POINT:Y_SCREEN in the file: z-up assumed "
+                                               "(give --gravity if the lab's world is not)")
+    solved = int(poses.solved.sum())
+    residual = poses.residual[poses.solved]
+    notes = [
+        f"c3d: {len(markers)} frames at {take.rate:g} Hz from frame {take.first_frame} "
+        f"(t = {markers.t[0]:.6g} s), POINT:UNITS {take.units}; {take.residual_flagged} marker "
+        f"samples flagged invalid, {take.zero_filled} zero-filled",
+        cluster.rigidity_line(),
+        f"solvable frames: {solved} of {len(markers)} ({100 * solved / len(markers):.1f} %) with "
+        f">= {MIN_MARKERS} markers seen; {int(poses.rejected.sum())} refused (fit residual > "
+        f"{args.max_residual:g} mm or collinear markers)"
+        + (f"; fit residual median {np.median(residual) * 1e3:.2f} mm, max "
+           f"{residual.max() * 1e3:.2f} mm" if solved else ""),
+        f"gravity: {gravity} m/s^2 from {origin}",
+    ]
+    positions = {name: [float(v) for v in position]
+                 for name, position in zip(markers.names, cluster.body_positions, strict=True)}
+    return _with_imu(args, path, mocap, gravity, markers, positions), notes
+
+
+def _convert_broad(args: argparse.Namespace) -> tuple[Recording, list[str]]:
+    return read_broad(args.trial, mocap_step=args.mocap_step), []
 
 
 def check_output_folder(folder: Path, force: bool) -> None:
     """Refuse to overwrite an existing recording unless ``force``; FileExistsError otherwise."""
-    existing = [name for name in (IMU_FILE, MOCAP_FILE, META_FILE) if (folder / name).exists()]
+    existing = [name for name in (IMU_FILE, MOCAP_FILE, META_FILE, MARKERS_FILE)
+                if (folder / name).exists()]
     if existing and not force:
         raise FileExistsError(f"{folder} already holds {', '.join(existing)}; expected a new or "
                               "empty folder (use --force to overwrite)")
@@ -149,15 +275,16 @@ def write_without_mount(recording: Recording, folder: Path) -> Recording:
     metadata = {key: value for key, value in info_to_dict(recording.info).items()
                 if key != "imu_to_body"}
     (folder / META_FILE).write_text(yaml.safe_dump(metadata, sort_keys=False))
+    markers = None if recording.markers is None else read_markers(folder / MARKERS_FILE)
     return Recording(imu=read_imu(folder / IMU_FILE), mocap=read_mocap(folder / MOCAP_FILE),
-                     info=recording.info, source=str(folder))
+                     info=recording.info, source=str(folder), markers=markers)
 
 
 def run(args: argparse.Namespace) -> int:
     folder = Path(args.out)
     check_output_folder(folder, args.force)
-    recording = args._convert(args)
-    mount_unknown = args.format == "motive" and args.imu_to_body is None
+    recording, notes = args._convert(args)
+    mount_unknown = args.format in ("motive", "c3d") and args.imu_to_body is None
     if mount_unknown:
         written = write_without_mount(recording, folder)
     else:
@@ -165,6 +292,8 @@ def run(args: argparse.Namespace) -> int:
         # Read back with the folder reader, so what was written is exactly what `check` accepts.
         written = read_recording(folder)
     print(f"{args.format}: wrote {folder}")
+    for note in notes:
+        print(note)
     print(summarise(written))
     print(next_step(folder) if mount_unknown else f"next: kfusion check {folder}, then "
           f"kfusion track {folder} --method kalman --out track.csv")

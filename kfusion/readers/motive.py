@@ -34,7 +34,9 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from kfusion.readers.markers import match_markers
 from kfusion.recording import (
+    MarkerFrames,
     MocapFrames,
     RecordingError,
     check_mocap_values,
@@ -47,6 +49,9 @@ multiplying by 0.001) returns the double nearest to the decimal value, so ``1200
 as exactly ``float("1.2005")`` m."""
 
 RIGID_BODY = "Rigid Body"
+MARKER = "Marker"
+"""Type of a measured (labelled) marker's columns. ``Rigid Body Marker`` columns hold where the
+rigid body expects its markers, not measurements, and are not read."""
 TIME_HEADER = "Time (Seconds)"
 ROTATION_AXES = ("W", "X", "Y", "Z")
 """Order of the rotation columns in kfusion's ``[w, x, y, z]`` (Motive writes X, Y, Z, W)."""
@@ -324,3 +329,71 @@ def read_motive_csv(path: str | Path, *, rigid_body: str | None = None,
         note = f" (the header says Length Units {units})" if error.column in ("x", "y", "z") else ""
         raise _relocated(error, header.data_line, names, note) from None
     return MocapFrames(t=values[:, 0], position=position, quaternion=quaternion)
+
+
+def _marker_columns(file: str, header: MotiveHeader) -> dict[str, tuple[int, int, int]]:
+    """Name -> 0-based (X, Y, Z) position columns of every ``Marker`` in the export."""
+    found: dict[str, dict[str, int]] = {}
+    for column in range(2, len(header.axes)):
+        if header.cell("Type", column) != MARKER or _cell(header.categories, column) != "Position":
+            continue
+        axes = found.setdefault(header.cell("Name", column), {})
+        axis = _cell(header.axes, column).upper()
+        if axis in axes:
+            raise RecordingError(file, f"marker name {header.cell('Name', column)!r} names "
+                                 "several markers; rename one in Motive",
+                                 column=f"{header.cell('Name', column)} Position {axis}")
+        axes[axis] = column
+    return {name: (axes["X"], axes["Y"], axes["Z"]) for name, axes in found.items()
+            if set(POSITION_AXES) <= set(axes)}
+
+
+def read_motive_markers(path: str | Path, names: Sequence[str], *,
+                        zero_position_means_occluded: bool = False) -> MarkerFrames:
+    """Read the named markers (``Marker`` columns) of a Motive CSV export.
+
+    Args:
+        path: the ``.csv`` exported by Motive with markers enabled.
+        names: marker names, each matching a label exactly or the part after its ``:``
+            (``Marker1`` finds ``Forearm:Marker1``); the result keeps these names.
+        zero_position_means_occluded: read a marker at exactly (0, 0, 0) as occluded.
+
+    Returns:
+        MarkerFrames: t (k,) s, position (k, n, 3) m (from ``Length Units``), NaN where the
+        marker's cells are blank.
+
+    Raises:
+        RecordingError: naming the file, row, line and column; a missing name lists the
+            export's markers.
+    """
+    path = Path(path)
+    file = path.name
+    header = read_motive_header(path)
+    divisor = length_divisor(file, header.metadata)
+    available = _marker_columns(file, header)
+    labels = list(available)
+    chosen = [labels[i] for i in match_markers(file, names, labels, "the 'Marker' columns")]
+    columns = [1] + [column for label in chosen for column in available[label]]
+    texts = [TIME_HEADER] + [f"{label} Position {axis}" for label in chosen
+                             for axis in POSITION_AXES]
+    raw = _read_frames(file, path, header, columns)
+    values, empty = _parse_cells(file, raw, texts, header.data_line)
+    try:
+        check_times(file, values[:, 0], empty[:, 0])
+    except RecordingError as error:
+        raise _relocated(error, header.data_line, {"t": TIME_HEADER}) from None
+    cells = values[:, 1:].reshape(len(values), len(chosen), 3)
+    missing: NDArray[np.bool_] = empty[:, 1:].reshape(len(values), len(chosen), 3)
+    partial = np.any(missing, axis=2) & ~np.all(missing, axis=2)
+    bad = np.isinf(cells) | partial[:, :, None]
+    if bad.any():
+        row, marker, axis = np.argwhere(bad)[0]
+        raise RecordingError(file, "marker cells partly blank or infinite; expected X, Y, Z all "
+                             "numbers, or all blank when occluded", row=int(row) + 1,
+                             line=header.data_line + int(row),
+                             column=texts[1 + 3 * int(marker) + int(axis)])
+    occluded: NDArray[np.bool_] = np.all(missing, axis=2)
+    if zero_position_means_occluded:
+        occluded = occluded | np.all(cells == 0, axis=2)
+    position = np.where(occluded[:, :, None], np.nan, cells / divisor)
+    return MarkerFrames(t=values[:, 0], names=tuple(names), position=position)
