@@ -873,7 +873,8 @@ class Tracker:
     @classmethod
     def from_yaml(cls, path: str | Path) -> Tracker:
         """A tracker from a YAML file (schema of :meth:`from_mapping`), such as a recording's
-        ``recording.yaml``: its ``name`` key, a label with no tracker setting, is ignored."""
+        ``recording.yaml``: its ``name`` (a label) and ``markers`` (used by converters, not by the
+        Tracker yet) keys are ignored."""
         path = Path(path)
         if not path.is_file():
             raise ValueError(f"{path}: file not found")
@@ -883,7 +884,7 @@ class Tracker:
             reason = f"not valid YAML ({error.reason})" if error.syntax else error.reason
             raise ValueError(f"{path}: {reason}") from None
         if isinstance(data, dict):
-            data = {key: value for key, value in data.items() if key != "name"}
+            data = {key: value for key, value in data.items() if key not in ("name", "markers")}
         return cls.from_mapping(data, source=str(path))
 
     def _new_estimator(self) -> _Estimator:

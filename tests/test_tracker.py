@@ -540,7 +540,7 @@ def test_from_yaml_takes_a_calibrated_files_clock_and_noise(tmp_path: Path):
     path = tmp_path / "recording.yaml"
     path.write_text("imu_to_body: [1, 0, 0, 0]\ngravity: [0, -9.81, 0]\nname: take 3\n"
                     "imu: mpu9255\nimu_time_offset: 1.25\nimu_clock_drift_ppm: -40.0\n"
-                    "imu_noise: {accelerometer_noise_density: 0.004}\n")
+                    "imu_noise: {accelerometer_noise_density: 0.004}\nmarkers: {A: [0, 0, 0.1]}\n")
     tracker = Tracker.from_yaml(path)
     reference = Tracker.from_recording_info(read_info(path))
     assert tracker.imu_clock == reference.imu_clock == (1.25, -40.0)
