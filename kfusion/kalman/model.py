@@ -249,9 +249,12 @@ def gate_threshold(probability: float | None, dof: int = MEASUREMENT_SIZE) -> fl
 
 
 def normalised_innovation_squared(y: ArrayLike, S: ArrayLike) -> float:
-    """NIS = y^T S^-1 y for innovation y (3,) and its covariance S (3, 3)."""
+    """NIS = y^T S^-1 y for innovation y (3,) and its covariance S (3, 3); inf when it
+    overflows (an absurd fix, e.g. 1e200 m away: gated, without a numpy warning)."""
     y = np.asarray(y, dtype=float)
-    return float(y @ np.linalg.solve(np.asarray(S, dtype=float), y))
+    with np.errstate(over="ignore", invalid="ignore"):
+        nis = float(y @ np.linalg.solve(np.asarray(S, dtype=float), y))
+    return nis if math.isfinite(nis) else math.inf
 
 
 def orientation_leak_variance(specific_force_squared: float, angle_variance_increase: float,
