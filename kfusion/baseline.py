@@ -83,7 +83,7 @@ from kfusion.conventions import (
     quaternion_multiply,
 )
 from kfusion.guards import real_number, refuse_masked, short_repr
-from kfusion.recording import Recording
+from kfusion.recording import Recording, on_mocap_clock
 from kfusion.streamhealth import FIX_TIMEOUT_S, tracking_status
 from kfusion.track import TrackResult
 
@@ -694,6 +694,7 @@ def track_recording(recording: Recording, params: BaselineParameters | None = No
     """
     params = (params or BaselineParameters()).replace(**overrides) if overrides else (
         params or BaselineParameters())
+    recording = on_mocap_clock(recording)  # the recording's IMU clock model, once
     tracker = BaselineTracker.from_recording(recording, params)
     imu, mocap = recording.imu, recording.mocap
     m = len(mocap)

@@ -33,9 +33,7 @@ def method_function(name: str) -> Callable[..., TrackResult]:
 def track_with_method(recording: Recording, method: str, **options: Any) -> TrackResult:
     """Run method ``method`` over ``recording``; ``options`` go to the method's parameters.
 
-    The IMU clock model of ``recording.info`` (``imu_time_offset``, ``imu_clock_drift_ppm``) is
-    applied here, once, for every method (:func:`kfusion.calibration.on_mocap_clock`).
+    Each method applies the IMU clock model of ``recording.info`` (``imu_time_offset``,
+    ``imu_clock_drift_ppm``) itself, in its batch driver (:func:`kfusion.recording.on_mocap_clock`).
     """
-    from kfusion.calibration.clock import on_mocap_clock
-
-    return method_function(method)(on_mocap_clock(recording), **options)
+    return method_function(method)(recording, **options)

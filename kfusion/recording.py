@@ -51,6 +51,7 @@ from kfusion.conventions import (
     IMU_COLUMNS,
     MOCAP_COLUMNS,
     QUATERNION_NORM_TOLERANCE,
+    imu_time_to_mocap,
 )
 from kfusion.guards import (
     YamlError,
@@ -904,3 +905,22 @@ def write_recording(recording: Recording, folder: str | Path) -> Path:
     atomic_write_text(folder / META_FILE,
                       yaml.safe_dump(info_to_dict(recording.info), sort_keys=False))
     return folder
+
+
+def on_mocap_clock(recording: Recording) -> Recording:
+    """The recording with its IMU stamps mapped onto the mocap clock
+    (:func:`kfusion.conventions.imu_time_to_mocap` with ``info.imu_time_offset`` and
+    ``info.imu_clock_drift_ppm``) and those two fields set to 0; unchanged when both are 0.
+
+    Every estimator runs on the result (:func:`kfusion.methods.track_with_method`), so the clock
+    model is applied in one place.
+    """
+    info = recording.info
+    if info.imu_time_offset == 0.0 and info.imu_clock_drift_ppm == 0.0:
+        return recording
+    imu = recording.imu
+    mapped = ImuSamples(t=imu_time_to_mocap(imu.t, info.imu_time_offset,
+                                            info.imu_clock_drift_ppm),
+                        accelerometer=imu.accelerometer, gyroscope=imu.gyroscope)
+    synced = dataclasses.replace(info, imu_time_offset=0.0, imu_clock_drift_ppm=0.0)
+    return dataclasses.replace(recording, imu=mapped, info=synced)

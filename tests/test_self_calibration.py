@@ -15,7 +15,7 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from kfusion.calibration import calibrate_recording, on_mocap_clock
+from kfusion.calibration import calibrate_recording
 from kfusion.calibration.clock import (
     drift_from_window_offsets,
     normalised_cross_correlation,
@@ -32,6 +32,7 @@ from kfusion.recording import (
     MocapFrames,
     RecordingError,
     info_to_dict,
+    on_mocap_clock,
     parse_info,
     read_info,
     write_recording,
@@ -272,3 +273,27 @@ def test_the_scale_error_basis_spans_every_matrix():
     assert np.linalg.matrix_rank(basis) == 9
     assert np.allclose(SCALE_ERROR_BASIS[-1], np.eye(3))
     assert all(np.trace(matrix) == 0 for matrix in SCALE_ERROR_BASIS[:-1])
+
+
+def test_every_batch_entry_point_applies_the_recordings_clock_model():
+    # A recording whose IMU runs on its own clock, described in its info: the filter, the
+    # smoother, the baseline and the numpy reference, called directly (not through kfusion
+    # track), must track as on the mapped stamps; ignoring the clock is a different result.
+    from kfusion.baseline import track_recording as baseline_track
+    from kfusion.kalman import filter_recording, run_smoother
+    from kfusion.kalman.parameters import KalmanParameters
+    from kfusion.kalman.reference import reference_filter
+
+    shifted = simulate("random_reach", seed=2, duration=8.0, imu_time_offset=0.4,
+                       imu_clock_drift_ppm=60.0).recording
+    recording = dataclasses.replace(shifted, info=dataclasses.replace(  # the true clock, declared
+        shifted.info, imu_time_offset=0.4, imu_clock_drift_ppm=60.0))
+    mapped = on_mocap_clock(recording)
+    ignored = dataclasses.replace(recording, info=dataclasses.replace(
+        recording.info, imu_time_offset=0.0, imu_clock_drift_ppm=0.0))
+    for run in (lambda r: filter_recording(r).position, lambda r: run_smoother(r).result.position,
+                lambda r: baseline_track(r).position,
+                lambda r: reference_filter(r, KalmanParameters.from_profiles(
+                    r.info.imu)).position):
+        np.testing.assert_array_equal(run(recording), run(mapped))
+        assert not np.allclose(run(recording), run(ignored), equal_nan=True)

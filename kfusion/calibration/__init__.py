@@ -2,7 +2,7 @@
 
 * :mod:`~kfusion.calibration.paper`: the paper's Kabsch mount from still poses and its gain K;
 * :mod:`~kfusion.calibration.clock`: the IMU clock's offset (cross-correlation) and drift
-  (windows), and :func:`on_mocap_clock`, which applies the clock model;
+  (windows; :func:`kfusion.recording.on_mocap_clock` applies the clock model);
 * :mod:`~kfusion.calibration.rates`: mount, clock and gyroscope bias from paired angular rates;
 * :mod:`~kfusion.calibration.specific_force`: gravity, lever arm and accelerometer bias;
 * :mod:`~kfusion.calibration.noise`: noise densities;
@@ -11,7 +11,7 @@
   ``kfusion track``), on the same estimators.
 """
 
-from kfusion.calibration.clock import coarse_clock_offset, on_mocap_clock
+from kfusion.calibration.clock import coarse_clock_offset
 from kfusion.calibration.paper import (
     DEFAULT_GRAVITY_TOLERANCE,
     DEFAULT_GYROSCOPE_THRESHOLD,
@@ -54,7 +54,6 @@ __all__ = [
     "coarse_clock_offset",
     "gravity_pairs",
     "kabsch",
-    "on_mocap_clock",
     "restamped",
     "still_periods",
     "without_calibration",

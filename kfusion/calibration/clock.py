@@ -21,7 +21,6 @@ come from a joint least-squares fit with the mount (:mod:`kfusion.calibration.mo
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Final
 
@@ -29,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import signal
 
-from kfusion.conventions import imu_time_to_mocap, rotation_from_wxyz
+from kfusion.conventions import rotation_from_wxyz
 from kfusion.recording import ImuSamples, Recording
 
 Array = NDArray[np.float64]
@@ -323,27 +322,3 @@ def drift_from_window_offsets(imu_times: ArrayLike, offsets: ArrayLike,
                     offset_std=float(np.sqrt(covariance[0, 0])),
                     drift_std_ppm=float(np.sqrt(covariance[1, 1]) * 1e6),
                     residual=float(np.sqrt(np.mean(residual**2))))
-
-
-# --------------------------------------------------------------------------------------------
-# Applying the clock model
-# --------------------------------------------------------------------------------------------
-
-
-def on_mocap_clock(recording: Recording) -> Recording:
-    """The recording with its IMU stamps mapped onto the mocap clock
-    (:func:`kfusion.conventions.imu_time_to_mocap` with ``info.imu_time_offset`` and
-    ``info.imu_clock_drift_ppm``) and those two fields set to 0; unchanged when both are 0.
-
-    Every estimator runs on the result (:func:`kfusion.methods.track_with_method`), so the clock
-    model is applied in one place.
-    """
-    info = recording.info
-    if info.imu_time_offset == 0.0 and info.imu_clock_drift_ppm == 0.0:
-        return recording
-    imu = recording.imu
-    mapped = ImuSamples(t=imu_time_to_mocap(imu.t, info.imu_time_offset,
-                                            info.imu_clock_drift_ppm),
-                        accelerometer=imu.accelerometer, gyroscope=imu.gyroscope)
-    synced = dataclasses.replace(info, imu_time_offset=0.0, imu_clock_drift_ppm=0.0)
-    return dataclasses.replace(recording, imu=mapped, info=synced)

@@ -26,7 +26,7 @@ from typing import Final
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from kfusion.calibration.clock import Correlation, coarse_clock_offset, on_mocap_clock
+from kfusion.calibration.clock import Correlation, coarse_clock_offset
 from kfusion.calibration.rates import (
     MIN_ROTATION_RATE,
     MIN_SECOND_AXIS,
@@ -37,7 +37,7 @@ from kfusion.calibration.rates import (
 from kfusion.calibration.recording import GRAVITY_TOLERANCE_DEG, angle_between_deg
 from kfusion.calibration.specific_force import fit_specific_force
 from kfusion.conventions import matrix_from_wxyz, rotation_from_wxyz
-from kfusion.recording import MocapFrames, Recording
+from kfusion.recording import MocapFrames, Recording, on_mocap_clock
 
 CLOCK_TOLERANCE_S: Final = 0.010
 """s: a clock offset beyond this is reported (1 m/s of arm speed turns 10 ms into 10 mm)."""

@@ -22,7 +22,7 @@ from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
 from kfusion.kalman.model import output_covariance, output_point
 from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
 from kfusion.monitor import ConsistencyMonitor, MonitorParameters, MonitorReport
-from kfusion.recording import Recording
+from kfusion.recording import Recording, on_mocap_clock
 from kfusion.streamhealth import FIX_TIMEOUT_S, tracking_status
 from kfusion.track import TrackResult
 
@@ -71,8 +71,9 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
     are not fed (no output row would use them). ``monitor`` sees the same events (after the
     filter).
 
-    The IMU stamps must be on the mocap clock: :func:`kfusion.methods.track_recording` maps
-    them (:func:`kfusion.calibration.on_mocap_clock`)."""
+    The recording's clock model is applied here (:func:`kfusion.recording.on_mocap_clock`), so
+    every batch path (``filter_recording``, ``run_smoother``, ``kfusion track``) uses it."""
+    recording = on_mocap_clock(recording)
     imu = recording.imu
     mocap = recording.mocap
     stamps = imu.t.tolist()

@@ -14,7 +14,7 @@ Time of an event, on the mocap clock (the reference, GUIDE §2):
 
   The first line is the clock model, written once in
   :func:`kfusion.conventions.imu_time_to_mocap` and applied where the stream enters
-  (:func:`kfusion.calibration.on_mocap_clock` for a recording, :meth:`Tracker.push_imu` for a
+  (:func:`kfusion.recording.on_mocap_clock` for a recording, :meth:`Tracker.push_imu` for a
   stream); the second is :func:`imu_event_time`. A sample stamped ``t_mapped`` describes the
   motion at ``t_event``: with a latency larger than the gap between a mocap frame and the next
   IMU stamp, a sample stamped after a frame describes the motion before it and must be fused

@@ -39,7 +39,7 @@ from kfusion.kalman.orientation import (
     quaternion_product,
 )
 from kfusion.kalman.parameters import KalmanParameters
-from kfusion.recording import Recording
+from kfusion.recording import Recording, on_mocap_clock
 
 
 @dataclass(frozen=True)
@@ -249,7 +249,9 @@ class _Reference:
 
 def reference_filter(recording: Recording, params: KalmanParameters) -> ReferenceRun:
     """Run the reference over ``recording`` (events in time order, an IMU sample at
-    :func:`kfusion.kalman.events.imu_event_time`, IMU first at equal times)."""
+    :func:`kfusion.kalman.events.imu_event_time`, IMU first at equal times; the recording's
+    clock model applied first, as in the batch driver)."""
+    recording = on_mocap_clock(recording)
     filter_ = _Reference(recording, params)
     imu, mocap = recording.imu, recording.mocap
     m, n = len(mocap), filter_.n
