@@ -85,7 +85,7 @@ from kfusion.conventions import (
 from kfusion.guards import real_number, refuse_masked, short_repr
 from kfusion.recording import Recording, on_mocap_clock
 from kfusion.streamhealth import FIX_TIMEOUT_S, tracking_status
-from kfusion.track import TrackResult
+from kfusion.track_file import TrackResult
 
 METHOD_NAME: Final = "baseline"
 PERIOD_TOLERANCE: Final = 0.01

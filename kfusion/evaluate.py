@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from kfusion.conventions import LOST
 from kfusion.recording import MocapFrames, Recording, occlusion_runs
-from kfusion.track import TrackResult
+from kfusion.track_file import TrackResult
 
 
 @dataclass(frozen=True)

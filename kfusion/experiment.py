@@ -20,7 +20,7 @@ from kfusion.evaluate import GapErrors, gap_errors, metrics_from_errors, per_gap
 from kfusion.guards import atomic_write
 from kfusion.methods import track_with_method
 from kfusion.recording import Recording
-from kfusion.track import TrackResult
+from kfusion.track_file import TrackResult
 
 
 @dataclass(frozen=True)

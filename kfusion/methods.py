@@ -1,6 +1,6 @@
 """Registry of estimation methods: name -> function ``(recording, **options) -> TrackResult``.
 
-Every method returns a :class:`kfusion.track.TrackResult` with one row per mocap row. The
+Every method returns a :class:`kfusion.track_file.TrackResult` with one row per mocap row. The
 ``kfusion track``, ``run``, ``sweep`` and ``demo`` commands and the benchmarks all go through
 :func:`track_with_method`, so a method added here shows up everywhere.
 """
@@ -12,7 +12,7 @@ from collections.abc import Callable
 from typing import Any
 
 from kfusion.recording import Recording
-from kfusion.track import TrackResult
+from kfusion.track_file import TrackResult
 
 METHODS: dict[str, str] = {
     "baseline": "kfusion.baseline:track_recording",

@@ -65,7 +65,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 if TYPE_CHECKING:
-    from kfusion.kalman.filter import FilterStep, KalmanFusion, KalmanSnapshot, UpdateOutcome
+    from kfusion.kalman.filter import FilterEstimate, KalmanFusion, KalmanSnapshot, UpdateOutcome
 
 CONSISTENT: Final = "consistent"
 GRAVITY: Final = "gravity direction, sign or units"
@@ -440,7 +440,7 @@ class ConsistencyMonitor:
         return self._gated_fix is not None
 
     def mocap(self, t: float, position: NDArray[np.float64] | None, outcome: UpdateOutcome,
-              fusion: KalmanFusion, prior: FilterStep | None = None) -> None:
+              fusion: KalmanFusion, prior: FilterEstimate | None = None) -> None:
         """A mocap frame at t (s) after the main filter (``fusion``) processed it with
         ``outcome``; ``position`` (3,) m or None when occluded; ``prior``: the filter's
         estimate at t before this frame (needed only while :attr:`has_gated_fix`)."""

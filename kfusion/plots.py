@@ -44,7 +44,7 @@ from numpy.typing import NDArray  # noqa: E402
 from kfusion.conventions import LOST  # noqa: E402
 from kfusion.guards import atomic_write  # noqa: E402
 from kfusion.recording import Recording, occlusion_runs  # noqa: E402
-from kfusion.track import TrackResult  # noqa: E402
+from kfusion.track_file import TrackResult  # noqa: E402
 
 AXIS_NAMES = ("x", "y", "z")
 METHOD_STYLES: dict[str, dict[str, Any]] = {

@@ -56,7 +56,7 @@ from kfusion.experiment import (
     write_table_csv,
 )
 from kfusion.guards import atomic_write, atomic_write_text
-from kfusion.track import TrackResult
+from kfusion.track_file import TrackResult
 
 AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
 RUNS_FOLDER = "runs"

@@ -33,7 +33,7 @@ from kfusion.recording import (
     write_recording,
 )
 from kfusion.simulate import OcclusionSpec, simulate
-from kfusion.track import read_track
+from kfusion.track_file import read_track
 from kfusion.tracker import Tracker
 
 IMU, MOCAP = 0, 1

@@ -8,7 +8,7 @@ import pytest
 from kfusion.conventions import BRIDGED, LOST, TRACKED
 from kfusion.evaluate import GapErrors, cut_gaps, gap_metrics, metrics_from_errors, per_gap_errors
 from kfusion.recording import ImuSamples, MocapFrames, Recording, RecordingInfo, occlusion_runs
-from kfusion.track import TrackResult
+from kfusion.track_file import TrackResult
 
 
 def make_recording(duration: float = 30.0, rate: float = 100.0,

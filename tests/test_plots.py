@@ -34,7 +34,7 @@ from kfusion.plots import (
     trajectory_figure,
     worst_gaps,
 )
-from kfusion.track import TrackResult
+from kfusion.track_file import TrackResult
 
 RATE_HZ = 100
 GAPS = [(100, 120), (300, 330), (500, 515), (700, 740)]

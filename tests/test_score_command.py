@@ -12,7 +12,7 @@ from kfusion.cli import main
 from kfusion.evaluate import gap_metrics
 from kfusion.simulate import OcclusionSpec, simulate
 from kfusion.simulate.files import write_simulation
-from kfusion.track import read_track
+from kfusion.track_file import read_track
 
 TRACK_HEADER = "t,x,y,z,std_x,std_y,std_z,status"
 TRUTH_HEADER = "t,x,y,z,occluded"

@@ -35,7 +35,7 @@ from kfusion.sweep import (
     run_experiment,
     run_sweep,
 )
-from kfusion.track import TrackResult
+from kfusion.track_file import TrackResult
 
 DATA = {"kind": "simulate", "scenario": "arm_lift", "duration": 8.0,
         "occlusions": {"gap_range": [0.1, 0.3], "spacing": 1.0}}

@@ -59,7 +59,7 @@ def test_track_rejects_malformed_option(recording_folder, tmp_path, capsys):
 
 
 def test_lost_rows_carry_no_estimate_in_memory():
-    from kfusion.track import TrackResult
+    from kfusion.track_file import TrackResult
 
     result = TrackResult(t=np.array([0.0, 0.01]), position=np.ones((2, 3)), std=np.ones((2, 3)),
                          status=np.array(["tracked", LOST]), time_since_fix=np.zeros(2))

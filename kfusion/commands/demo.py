@@ -24,7 +24,7 @@ from kfusion.plots import (
     trajectory_figure,
 )
 from kfusion.recording import write_recording
-from kfusion.track import write_track_csv
+from kfusion.track_file import write_track_csv
 
 NAME = "demo"
 HELP = "Run every estimator on the simulated arm-lift experiment; print and plot gap errors."

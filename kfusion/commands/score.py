@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
 
     from kfusion.evaluate import error_percentile_mm, gap_errors, metrics_from_errors
     from kfusion.simulate.files import read_truth
-    from kfusion.track import read_track
+    from kfusion.track_file import read_track
 
     track = read_track(args.track)
     path = truth_file(args.truth)

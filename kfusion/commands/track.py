@@ -13,7 +13,7 @@ from kfusion.conventions import STATUSES
 from kfusion.guards import YamlError, load_yaml_text, short_repr
 from kfusion.methods import METHODS, track_with_method
 from kfusion.recording import read_recording
-from kfusion.track import write_track_csv
+from kfusion.track_file import write_track_csv
 
 NAME = "track"
 HELP = "Estimate the position at every mocap row of a recording and write the track CSV."

@@ -7,7 +7,7 @@ Public API::
 
     KalmanParameters          frozen noise model, from profiles or a mapping
     KalmanFusion              streaming filter: predict(t, f, omega), update(t, p, q), estimate(t)
-    FilterStep, UpdateOutcome its outputs
+    FilterEstimate, UpdateOutcome  its outputs
     filter_recording          method "kalman": the filter over a recording -> TrackResult
     smooth_recording          method "smoother": fixed-interval RTS over the same model
     run_filter, run_smoother  the same, keeping per-row states and outcomes
@@ -27,7 +27,7 @@ from kfusion.kalman.filter import (
     INITIALISED,
     OCCLUDED,
     REACQUIRED,
-    FilterStep,
+    FilterEstimate,
     KalmanFusion,
     KalmanSnapshot,
     UpdateOutcome,
@@ -37,7 +37,7 @@ from kfusion.kalman.smoother import SmootherRun, run_smoother, smooth_recording
 
 __all__ = [
     "ACCEPTED", "GATED", "INITIALISED", "OCCLUDED", "REACQUIRED",
-    "FilterRun", "FilterStep", "KalmanFusion", "KalmanParameters", "KalmanSnapshot",
+    "FilterEstimate", "FilterRun", "KalmanFusion", "KalmanParameters", "KalmanSnapshot",
     "SmootherRun", "UpdateOutcome", "filter_recording", "run_filter", "run_smoother",
     "smooth_recording",
 ]

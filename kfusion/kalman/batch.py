@@ -24,7 +24,7 @@ from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
 from kfusion.monitor import ConsistencyMonitor, MonitorParameters, MonitorReport
 from kfusion.recording import Recording, on_mocap_clock
 from kfusion.streamhealth import FIX_TIMEOUT_S, tracking_status
-from kfusion.track import TrackResult
+from kfusion.track_file import TrackResult
 
 
 def resolve_parameters(recording: Recording, params: KalmanParameters | None,
@@ -112,7 +112,7 @@ class FilterRun:
     """Everything the filter produced over a recording, one row per mocap row.
 
     Attributes:
-        result: the :class:`kfusion.track.TrackResult` (method ``kalman``).
+        result: the :class:`kfusion.track_file.TrackResult` (method ``kalman``).
         x: (m, n) state after each row (n = 9, or 12 with the lever arm; NaN before the first
             fix).
         P: (m, n, n) its covariance.

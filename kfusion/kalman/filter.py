@@ -173,7 +173,7 @@ class UpdateOutcome:
 
 
 @dataclass(frozen=True)
-class FilterStep:
+class FilterEstimate:
     """The estimate at one time.
 
     Attributes:
@@ -440,7 +440,7 @@ class KalmanFusion:
                 q_global_body = None  # not a unit quaternion: a position-only fix
         return self._update_valid(t, z, q_global_body)
 
-    def estimate(self, t: float | None = None) -> FilterStep:
+    def estimate(self, t: float | None = None) -> FilterEstimate:
         """The estimate at t (s; default: the state's time). A later t extrapolates holding the
         last IMU sample, without changing the state; an earlier t is a ValueError."""
         if self._time is None:
@@ -452,7 +452,7 @@ class KalmanFusion:
         x, P, quaternion = self._extrapolate(t)
         nan3 = np.full(3, np.nan)
         if not self._initialised:
-            return FilterStep(t, nan3, np.full((3, 3), np.nan), nan3, nan3, nan3, nan3,
+            return FilterEstimate(t, nan3, np.full((3, 3), np.nan), nan3, nan3, nan3, nan3,
                               np.asarray(quaternion), np.full(P.shape, np.nan), LOST, math.inf,
                               self._last_nis)
         H, offset = self._output_map(quaternion)
@@ -463,7 +463,7 @@ class KalmanFusion:
             since, self._last_frame_fused, fix_timeout_s=streamhealth.FIX_TIMEOUT_S,
             max_bridge_s=self.params.max_bridge_s,
             beyond_dead_reckoning=t > self.dead_reckoning_until())
-        return FilterStep(
+        return FilterEstimate(
             t, position, position_covariance, np.sqrt(np.diag(position_covariance)),
             x[model.VELOCITY].copy(), x[model.BIAS].copy(), self._lever_in_use(x),
             np.asarray(quaternion), P, status, since, self._last_nis)

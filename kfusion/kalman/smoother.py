@@ -66,7 +66,7 @@ from kfusion.monitor import (
     required_scale,
 )
 from kfusion.recording import Recording, occlusion_durations, occlusion_runs
-from kfusion.track import TrackResult
+from kfusion.track_file import TrackResult
 
 
 def rts_step(x_filtered: NDArray[np.float64], P_filtered: NDArray[np.float64],
