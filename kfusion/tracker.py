@@ -148,9 +148,6 @@ MOCAP_REJECTIONS: Final = (GATED, NON_FINITE, BAD_QUATERNION, OUT_OF_ORDER, DUPL
 METHODS: Final = ("kalman", "baseline")
 DEFAULT_CONFIDENCE: Final = 0.99
 
-_IMU: Final = IMU_STREAM
-_MOCAP: Final = MOCAP_STREAM
-
 
 # ---------------------------------------------------------------------------------------------
 # Results
@@ -924,14 +921,14 @@ class Tracker:
         if not (isfinite(t) and isfinite(a0) and isfinite(a1) and isfinite(a2)
                 and isfinite(g0) and isfinite(g1) and isfinite(g2)):
             return self._reject(stream, NON_FINITE)
-        if self._implausible(t, _IMU):
+        if self._implausible(t, IMU_STREAM):
             return self._reject(stream, IMPLAUSIBLE_TIME)
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (accelerometer, gyroscope))
         saturated = max(abs(a0), abs(a1), abs(a2)) >= self._saturation_level
         # fused at the time the sample describes (kfusion.kalman.events: stamp - latency)
-        time, _ = event_key(t, _IMU, self._estimator.imu_latency_s)
-        if self._fuse((time, _IMU, accelerometer, (g0, g1, g2), saturated, t)) is None:
+        time, _ = event_key(t, IMU_STREAM, self._estimator.imu_latency_s)
+        if self._fuse((time, IMU_STREAM, accelerometer, (g0, g1, g2), saturated, t)) is None:
             return self._reject(stream, TOO_LATE)
         interval = t - stream.last_t  # inf for the first sample (after a reset too)
         if interval != math.inf and interval > stream.longest_interval_s:
@@ -974,7 +971,7 @@ class Tracker:
         components = rotation.tolist()
         if not math.isfinite(t) or any(map(math.isinf, values + components)):
             return self._reject(stream, NON_FINITE)
-        if self._implausible(t, _MOCAP):
+        if self._implausible(t, MOCAP_STREAM):
             return self._reject(stream, IMPLAUSIBLE_TIME)
         if any(map(math.isnan, values)):
             point, rotation = nan_position, np.full(4, np.nan)
@@ -986,7 +983,7 @@ class Tracker:
                 return self._reject(stream, BAD_QUATERNION)
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (point, rotation))
-        reason = self._fuse((t, _MOCAP, point, rotation, False, t))
+        reason = self._fuse((t, MOCAP_STREAM, point, rotation, False, t))
         if reason is None:
             return self._reject(stream, TOO_LATE)
         stream.last_t, stream.last_values = t, (point, rotation)
@@ -1172,7 +1169,8 @@ class Tracker:
         (:class:`kfusion.streamhealth.TimeGuard`): True to reject it. A confirmed jump restarts
         the streams from the new time (counted in ``health.time_rebases``)."""
         imu, mocap = self._imu.last_t, self._mocap.last_t
-        seen = {index for index, last in ((_IMU, imu), (_MOCAP, mocap)) if last != -math.inf}
+        seen = {index for index, last in ((IMU_STREAM, imu), (MOCAP_STREAM, mocap))
+                if last != -math.inf}
         verdict = self._guard.check(t, stream, max(imu, mocap), seen)
         if verdict == REBASE:
             self._estimator = self._new_estimator()
@@ -1260,7 +1258,7 @@ class Tracker:
                     outcome = self._apply(event)
             else:
                 outcome = self._apply(event)
-            failed = (large or stream == _MOCAP) and not self._estimator.finite()
+            failed = (large or stream == MOCAP_STREAM) and not self._estimator.finite()
         except _NUMERICAL_ERRORS:
             failed = True
         if failed:
@@ -1274,7 +1272,7 @@ class Tracker:
             book.counts.state_resets += 1
             book.fix_time = -math.inf
             book.last_frame_fused = False
-        if stream == _MOCAP:
+        if stream == MOCAP_STREAM:
             self._count_fix(t, outcome)
         book.key = (t, stream)
         status = self._status_at(t)
@@ -1285,7 +1283,7 @@ class Tracker:
 
     def _apply(self, event: tuple) -> str:
         """The estimator's step for one event; its outcome (``accepted`` for an IMU sample)."""
-        if event[1] == _IMU:
+        if event[1] == IMU_STREAM:
             self._estimator.predict(event[5], event[2], event[3])  # its stamp
             return ACCEPTED
         position, quaternion = event[2], event[3]
@@ -1345,7 +1343,8 @@ class Tracker:
         log = self._log
         log.append(event)
         checkpoints = self._checkpoints
-        if event[1] == _MOCAP or t - checkpoints[-1].key[0] >= self.options.checkpoint_interval_s:
+        interval = self.options.checkpoint_interval_s
+        if event[1] == MOCAP_STREAM or t - checkpoints[-1].key[0] >= interval:
             checkpoints.append(_Checkpoint((t, event[1]), self._estimator.snapshot(),
                                            self._book.copy()))
             while len(checkpoints) > 1 and checkpoints[1].key[0] <= t - delay:
