@@ -23,7 +23,11 @@ from kfusion.calibration.clock import (
 )
 from kfusion.calibration.diagnosis import diagnose
 from kfusion.calibration.noise import third_difference_std
-from kfusion.calibration.specific_force import SCALE_ERROR_BASIS, lever_arm_matrix
+from kfusion.calibration.specific_force import (
+    SCALE_ERROR_BASIS,
+    fit_accelerometer_offset,
+    lever_arm_matrix,
+)
 from kfusion.cli import main
 from kfusion.conventions import imu_time_to_mocap, rotation_from_wxyz
 from kfusion.methods import track_with_method
@@ -109,6 +113,46 @@ def test_self_calibration_recovers_clock_mount_and_lever_arm(shifted):
     assert np.degrees(np.arccos(info.gravity @ [0, -9.81, 0] / 9.81**2)) < 1.0
     assert 0.5 < info.imu_noise.accelerometer_noise_density / 300e-6 / 9.80665 < 2.0
     assert result.complete and "imu_time_offset" not in result.undetermined
+
+
+def _accelerometer_delayed(recording, delay_s):
+    """The recording with the accelerometer alone read ``delay_s`` late: each sample holds the
+    specific force of ``delay_s`` before its stamp, so the accelerometer's stamps map onto the
+    mocap clock with ``offset - delay_s``. The gyroscope is untouched."""
+    imu = recording.imu
+    delayed = np.column_stack([np.interp(imu.t - delay_s, imu.t, imu.accelerometer[:, axis])
+                               for axis in range(3)])
+    return dataclasses.replace(recording, imu=ImuSamples(imu.t, delayed, imu.gyroscope))
+
+
+def test_the_accelerometer_is_timed_on_its_own(shifted):
+    # started 3 ms off, Gauss-Newton on the specific force comes back to the true offset; an
+    # accelerometer read 1.5 ms late moves its own offset by -1.5 ms
+    recording, truth = shifted.recording, 1.3
+    info = recording.info
+    start = truth + 0.003
+    found = fit_accelerometer_offset(recording, start, 60.0, info.imu_to_body)
+    assert abs(found.offset - truth) < 3e-4 and found.offset_std < 3e-4
+    assert 1 < found.iterations <= 4
+    delayed = fit_accelerometer_offset(_accelerometer_delayed(recording, 0.0015), start, 60.0,
+                                       info.imu_to_body)
+    assert abs(delayed.offset - (truth - 0.0015)) < 3e-4
+
+
+def test_a_slow_arm_lift_is_timed_by_the_accelerometer():
+    # arm_lift rotates too little for the gyroscope to time the clock within 2 ms (std 5-9 ms):
+    # the accelerometer does, so offset, mount and gravity are all determined
+    simulation = simulate("arm_lift", seed=1, duration=60.0, imu_time_offset=-0.4)
+    recording = simulation.recording
+    unknown = dataclasses.replace(recording.info, imu_to_body=np.full(4, np.nan),
+                                  gravity=np.full(3, np.nan), lever_arm=None)
+    result = calibrate_recording(dataclasses.replace(recording, info=unknown))
+    assert result.clock_and_mount.fit.offset_std > 0.002
+    assert result.accelerometer_clock is not None
+    assert "imu_time_offset" not in result.undetermined
+    assert abs(result.info.imu_time_offset + 0.4) < 1e-3
+    assert result.imu_time_offset_std < 1e-3
+    assert any("from the accelerometer" in line for line in result.report())
 
 
 def test_rotation_about_one_axis_leaves_the_mount_undetermined():

@@ -226,6 +226,7 @@ class ClockAndMount:
     windows: WindowOffsets
     coarse_offset: float
     principal_rates: Array
+    principal_axes: Array
     undetermined: dict[str, str]
 
 
@@ -276,16 +277,29 @@ def calibrate_clock_and_mount(recording: Recording, coarse_offset: float, *,
             f"offset uncertainty {fit.offset_std * 1e3:.1f} ms: too little rotation (RMS body "
             f"rate {principal[0]:.2f} rad/s) to time the IMU against the mocap")
     if "imu_time_offset" in undetermined:
-        undetermined["imu_to_body"] = ("not fitted: the clock is undetermined, so gyroscope and "
-                                       "mocap rates cannot be paired")
-    elif principal[1] < MIN_SECOND_AXIS * principal[0]:
-        axis = np.round(axes[:, 0], 2).tolist()
-        undetermined["imu_to_body"] = (
-            f"rotation about one axis only (body axis {axis}, RMS {principal[0]:.2f} rad/s; "
-            f"the next axis {principal[1]:.3f} rad/s): the mount is undetermined about it")
-    elif np.max(fit.mount_std_deg) > MAX_MOUNT_STD_DEG:
-        undetermined["imu_to_body"] = (
-            f"mount uncertainty {np.max(fit.mount_std_deg):.2f} deg exceeds "
-            f"{MAX_MOUNT_STD_DEG:g} deg: rotate the limb about more than one axis")
+        undetermined["imu_to_body"] = CLOCK_UNDETERMINED
+    else:
+        reason = mount_undetermined(principal, axes, fit)
+        if reason is not None:
+            undetermined["imu_to_body"] = reason
     return ClockAndMount(fit=fit, windows=windows, coarse_offset=coarse_offset,
-                         principal_rates=principal, undetermined=undetermined)
+                         principal_rates=principal, principal_axes=axes,
+                         undetermined=undetermined)
+
+
+CLOCK_UNDETERMINED: Final = ("not fitted: the clock is undetermined, so gyroscope and mocap "
+                             "rates cannot be paired")
+
+
+def mount_undetermined(principal: Array, axes: Array, fit: RateFit) -> str | None:
+    """Why the rates do not determine the mount (None when they do): rotation about one axis
+    only (the second principal RMS rate below :data:`MIN_SECOND_AXIS` of the first), or a
+    mount 1-sigma above :data:`MAX_MOUNT_STD_DEG` about some body axis."""
+    if principal[1] < MIN_SECOND_AXIS * principal[0]:
+        axis = np.round(axes[:, 0], 2).tolist()
+        return (f"rotation about one axis only (body axis {axis}, RMS {principal[0]:.2f} rad/s; "
+                f"the next axis {principal[1]:.3f} rad/s): the mount is undetermined about it")
+    if np.max(fit.mount_std_deg) > MAX_MOUNT_STD_DEG:
+        return (f"mount uncertainty {np.max(fit.mount_std_deg):.2f} deg exceeds "
+                f"{MAX_MOUNT_STD_DEG:g} deg: rotate the limb about more than one axis")
+    return None

@@ -74,6 +74,9 @@ Gaussian 3-axis misfits the median is 1.54 sigma, so about 6 sigma)."""
 MAX_REJECTION_PASSES: Final = 10
 UNKNOWNS: Final = 18
 """g (3), r (3), b_acc (3), e (9)."""
+MAX_TIME_SHIFT_ITERATIONS: Final = 4
+TIME_SHIFT_TOLERANCE_S: Final = 2e-5
+"""s: Gauss-Newton on the accelerometer's clock offset stops below this step."""
 
 
 def cross_matrix(vectors: ArrayLike) -> Array:
@@ -128,13 +131,19 @@ def _filter(values: Array, rate: float, cutoff: float) -> Array:
 
 
 def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
-                          imu_to_body: ArrayLike, *, cutoff_hz: float = CUTOFF_HZ
-                          ) -> tuple[Array, Array]:
+                          imu_to_body: ArrayLike, *, cutoff_hz: float = CUTOFF_HZ,
+                          time_shift: bool = False) -> tuple[Array, Array]:
     """The filtered linear system ``y (k, 3) = A (k, 3, 18) x`` of the module docstring, over
-    every visible mocap run of at least :data:`MIN_RUN_S` inside the IMU's span."""
+    every visible mocap run of at least :data:`MIN_RUN_S` inside the IMU's span.
+
+    With ``time_shift`` A has a 19th column for a correction ``delta`` (s) of ``offset``: the
+    true offset is ``offset + delta``, so the IMU is read ``delta`` too late on the IMU clock
+    and, to first order, ``R_global_imu f(tau) = R_global_imu f(tau_true) + R_global_imu
+    f'(tau) delta`` (:func:`fit_accelerometer_offset`)."""
     imu, mocap = recording.imu, recording.mocap
     R_body_imu = matrix_from_wxyz(imu_to_body)
     angular_acceleration = np.gradient(imu.gyroscope, imu.t, axis=0)
+    force_rate = np.gradient(imu.accelerometer, imu.t, axis=0) if time_shift else None
     rows_y, rows_a = [], []
     for start, stop in occlusion_runs(~mocap.visible):  # runs of visible frames
         t = mocap.t[start:stop]
@@ -162,12 +171,14 @@ def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
         y = np.einsum("nij,nj->ni", R_global_imu, force) - acceleration
         # R_global_imu B_j f for each basis matrix: (n, 3, 9)
         scale = np.einsum("nik,jkl,nl->nij", R_global_imu, SCALE_ERROR_BASIS, force)
-        design = np.concatenate([np.broadcast_to(-np.eye(3), lever.shape), lever, R_global_imu,
-                                 scale], axis=2)
+        blocks = [np.broadcast_to(-np.eye(3), lever.shape), lever, R_global_imu, scale]
+        if force_rate is not None:
+            blocks.append(np.einsum("nij,nj->ni", R_global_imu, at(force_rate))[:, :, None])
+        design = np.concatenate(blocks, axis=2)
         # filter the IMU side like the mocap side (the acceleration is already filtered)
         y = _filter(y + acceleration, rate, cutoff_hz) - acceleration
         design = _filter(design.reshape(len(t), -1), rate, cutoff_hz).reshape(
-            len(t), 3, UNKNOWNS)
+            len(t), 3, design.shape[2])
         keep = (t >= t[0] + TRIM_S) & (t <= t[-1] - TRIM_S)
         rows_y.append(y[keep])
         rows_a.append(design[keep])
@@ -179,15 +190,17 @@ def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
 
 def solve_specific_force(y: Array, design: Array, *, fit_bias: bool = True,
                          correlation: float = 1.0) -> tuple[Array, Array, Array]:
-    """Least squares of ``y = A x``; returns (x (18,), covariance (18, 18), residual (k', 3)
-    of the inliers).
+    """Least squares of ``y = A x``; returns (x (m,), covariance (m, m), residual (k', 3)
+    of the inliers), m = ``design.shape[2]`` (18, or 19 with a time-shift column last).
 
-    Without ``fit_bias`` the bias and scale-error columns are dropped (x[6:] = 0, their
+    Without ``fit_bias`` the bias and scale-error columns are dropped (x[6:18] = 0, their
     covariance NaN). ``correlation`` multiplies the covariance: filtered samples are not
     independent (about ``rate / (2 cutoff)`` samples per independent one).
     """
-    columns = UNKNOWNS if fit_bias else 6
-    A = design[:, :, :columns].reshape(-1, columns)
+    unknowns = design.shape[2]
+    used = np.arange(unknowns) if fit_bias else np.r_[0:6, UNKNOWNS:unknowns]
+    columns = len(used)
+    A = design[:, :, used].reshape(-1, columns)
     b = y.reshape(-1)
     solution, *_ = np.linalg.lstsq(A, b, rcond=None)
     # outlier rejection, repeated until the inliers settle: samples whose misfit exceeds
@@ -210,10 +223,10 @@ def solve_specific_force(y: Array, design: Array, *, fit_bias: bool = True,
     residual = b - A @ solution
     sigma2 = float(residual @ residual) / max(len(b) - columns, 1)
     covariance = np.linalg.pinv(A.T @ A) * sigma2 * correlation
-    x = np.zeros(UNKNOWNS)
-    full = np.full((UNKNOWNS, UNKNOWNS), np.nan)
-    x[:columns] = solution
-    full[:columns, :columns] = covariance
+    x = np.zeros(unknowns)
+    full = np.full((unknowns, unknowns), np.nan)
+    x[used] = solution
+    full[np.ix_(used, used)] = covariance
     return x, full, residual.reshape(-1, 3)
 
 
@@ -227,6 +240,56 @@ def measured_gravity(x: Array, covariance: Array) -> tuple[Array, Array]:
     jacobian = np.hstack([(1.0 + x[-1]) * np.eye(3), x[:3, None]])
     covariance_h = jacobian @ covariance[np.ix_(index, index)] @ jacobian.T
     return x[:3] * (1.0 + x[-1]), np.sqrt(np.maximum(np.diag(covariance_h), 0.0))
+
+
+@dataclass(frozen=True)
+class AccelerometerClock:
+    """Result of :func:`fit_accelerometer_offset`.
+
+    Attributes:
+        offset, offset_std: s, the IMU clock offset that times the accelerometer against the
+            mocap's acceleration, and its 1-sigma.
+        iterations: Gauss-Newton steps taken.
+        residual_rms: RMS misfit per axis at ``offset``, m/s^2 (filtered).
+    """
+
+    offset: float
+    offset_std: float
+    iterations: int
+    residual_rms: float
+
+
+def fit_accelerometer_offset(recording: Recording, offset: float, drift_ppm: float,
+                             imu_to_body: ArrayLike, *, cutoff_hz: float = CUTOFF_HZ,
+                             max_iterations: int = MAX_TIME_SHIFT_ITERATIONS
+                             ) -> AccelerometerClock:
+    """The clock offset (s) at which the accelerometer best matches the mocap's specific force,
+    starting from ``offset`` (the gyroscope's): Gauss-Newton on the linear system of
+    :func:`specific_force_system` with its time-shift column,
+
+        y(offset) = A x + R_global_imu f'(tau) delta,   offset <- offset + delta,
+
+    repeated until ``|delta|`` < :data:`TIME_SHIFT_TOLERANCE_S`. The accelerometer is what the
+    filter dead-reckons with, and an IMU's accelerometer and gyroscope can lag by different
+    amounts (their on-chip filters differ: on BROAD the accelerometer is timed about 1 ms
+    later than the gyroscope), so this is the offset a gap's position error depends on.
+    ValueError as :func:`specific_force_system`."""
+    rate = 1.0 / float(np.median(np.diff(recording.mocap.t)))
+    correlation = max(1.0, rate / (2.0 * cutoff_hz))
+    delta, std, residual = np.inf, np.inf, np.full((1, 3), np.nan)
+    iterations = 0
+    while iterations < max_iterations and abs(delta) >= TIME_SHIFT_TOLERANCE_S:
+        y, design = specific_force_system(recording, offset, drift_ppm, imu_to_body,
+                                          cutoff_hz=cutoff_hz, time_shift=True)
+        x, covariance, residual = solve_specific_force(y, design, correlation=correlation)
+        if not np.max(np.sqrt(np.diag(covariance)[6:9])) <= MAX_BIAS_STD:
+            x, covariance, residual = solve_specific_force(y, design, fit_bias=False,
+                                                           correlation=correlation)
+        delta, std = float(x[-1]), float(np.sqrt(max(covariance[-1, -1], 0.0)))
+        offset += delta
+        iterations += 1
+    return AccelerometerClock(offset=offset, offset_std=std, iterations=iterations,
+                              residual_rms=float(np.sqrt(np.mean(residual**2))))
 
 
 def fit_specific_force(recording: Recording, offset: float, drift_ppm: float,
