@@ -63,6 +63,7 @@ from pydantic import (
     field_validator,
 )
 
+from kfusion.conventions import imu_time_to_mocap
 from kfusion.experiment import ScoredRecording
 from kfusion.guards import YamlError, load_yaml, short_repr
 from kfusion.methods import METHODS
@@ -960,10 +961,12 @@ def notebook_quick() -> bool:
 
 
 def first_seconds(recording: Recording, seconds: float) -> Recording:
-    """The recording cut to samples with ``t <= t0 + seconds`` (t0: first sample of either
-    sensor)."""
-    start = min(recording.imu.t[0], recording.mocap.t[0])
-    imu_keep = recording.imu.t <= start + seconds
+    """The recording cut to samples with ``t <= t0 + seconds`` on the mocap clock (t0: first
+    sample of either sensor; IMU stamps mapped by the recording's clock model, which is kept)."""
+    info = recording.info
+    imu_t = imu_time_to_mocap(recording.imu.t, info.imu_time_offset, info.imu_clock_drift_ppm)
+    start = min(imu_t[0], recording.mocap.t[0])
+    imu_keep = imu_t <= start + seconds
     mocap_keep = recording.mocap.t <= start + seconds
     imu = ImuSamples(recording.imu.t[imu_keep], recording.imu.accelerometer[imu_keep],
                      recording.imu.gyroscope[imu_keep])

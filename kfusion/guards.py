@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import re
 import reprlib
 import tempfile
 from collections.abc import Callable
@@ -143,6 +144,13 @@ def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bo
 
 
 _BoundedLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+# YAML 1.2 floats: PyYAML follows YAML 1.1, where `1e-3` (no dot) is a string, so a noise
+# density or clock offset written that way was refused as text. Dotted floats, `.inf` and
+# `.nan` resolve as before.
+_BoundedLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"))
 
 
 def _expanded_size(node: yaml.Node, file: str | Path) -> int:

@@ -58,6 +58,7 @@ from kfusion.guards import (
     atomic_write,
     atomic_write_text,
     load_yaml,
+    real_number,
     refuse_masked,
     short_repr,
 )
@@ -270,6 +271,25 @@ IMU_NOISE_KEYS = ("accelerometer_noise_density", "gyroscope_noise_density")
 """Keys of ``recording.yaml``'s ``imu_noise`` section."""
 MAX_CLOCK_DRIFT_PPM = 10_000.0
 """ppm: a larger IMU clock drift (1 %) is a unit or clock mistake, not a crystal's drift."""
+MAX_CLOCK_OFFSET_S = 1e10
+"""s: the largest IMU clock offset (an IMU stamped in Unix time is about 1.7e9 s off)."""
+
+
+def check_clock(imu_time_offset: object, imu_clock_drift_ppm: object, where: str
+                ) -> tuple[float, float]:
+    """The clock model's two numbers as floats; ValueError naming ``where`` and the field
+    unless each is a real number (not a bool), the offset finite within
+    +-:data:`MAX_CLOCK_OFFSET_S` s and the drift within +-:data:`MAX_CLOCK_DRIFT_PPM` ppm."""
+    values = []
+    for name, value, limit, unit in (("imu_time_offset", imu_time_offset, MAX_CLOCK_OFFSET_S, "s"),
+                                     ("imu_clock_drift_ppm", imu_clock_drift_ppm,
+                                      MAX_CLOCK_DRIFT_PPM, "ppm")):
+        number = real_number(value)
+        if number is None or not abs(number) <= limit:
+            raise ValueError(f"{where}: {name}: expected a finite number within +-{limit:g} "
+                             f"{unit}, got {short_repr(value)}")
+        values.append(number)
+    return values[0], values[1]
 
 
 @dataclass(frozen=True)
@@ -324,6 +344,10 @@ class RecordingInfo:
     markers: Mapping[str, NDArray[np.float64]] | None = None
 
     def __post_init__(self) -> None:
+        offset, drift = check_clock(self.imu_time_offset, self.imu_clock_drift_ppm,
+                                    "RecordingInfo")
+        object.__setattr__(self, "imu_time_offset", offset)
+        object.__setattr__(self, "imu_clock_drift_ppm", drift)
         object.__setattr__(self, "imu_to_body", _frozen(self.imu_to_body))
         object.__setattr__(self, "gravity", _frozen(self.gravity))
         if self.lever_arm is not None:
@@ -693,7 +717,7 @@ def parse_info(data: object, file: str = META_FILE, *, require_mount: bool = Tru
         if key in data and data[key] is not None and not isinstance(data[key], str):
             raise RecordingError(file, f"expected a string, got {short_repr(data[key])}",
                                  key=key)
-    offset = _number(file, data, "imu_time_offset", "s", 1e9)
+    offset = _number(file, data, "imu_time_offset", "s", MAX_CLOCK_OFFSET_S)
     drift = _number(file, data, "imu_clock_drift_ppm", "ppm", MAX_CLOCK_DRIFT_PPM)
     return RecordingInfo(imu_to_body=imu_to_body, gravity=gravity, name=data.get("name"),
                          imu=data.get("imu"), lever_arm=lever_arm,

@@ -106,7 +106,7 @@ from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, event_key
 from kfusion.kalman.filter import ACCEPTED, GATED, OCCLUDED, REACQUIRED
 from kfusion.monitor import MonitorReport
 from kfusion.profiles import ImuProfile, imu_profile
-from kfusion.recording import MAX_CLOCK_DRIFT_PPM, RecordingInfo, parse_info
+from kfusion.recording import RecordingInfo, check_clock, parse_info
 from kfusion.streamhealth import (
     DEFAULT_MAX_TIME_JUMP_S,
     FIX_TIMEOUT_S,
@@ -714,8 +714,10 @@ class Tracker:
         options: :class:`TrackerOptions` or a mapping of its fields.
         imu_time_offset: s, and imu_clock_drift_ppm: the IMU's clock; :meth:`push_imu` maps
             its ``t`` onto the mocap clock with :func:`kfusion.conventions.imu_time_to_mocap`.
-        clock: a function returning the current time in s *on the stamps' clock* (e.g.
-            ``time.monotonic`` when the samples are stamped with it). With it,
+        clock: a function returning the current time in s *on the mocap clock* (the clock
+            of :meth:`push_mocap`'s ``t`` and :meth:`estimate`'s; e.g. ``time.monotonic`` when
+            the mocap frames are stamped with it). With an IMU on a clock of its own, do not
+            pass the IMU's "now": it is ``imu_time_offset`` away from the mocap's. With it,
             :meth:`estimate` without ``t`` is the estimate now; without it, :meth:`estimate`
             needs ``t`` (an estimate is never presented as current when it is old).
 
@@ -740,11 +742,7 @@ class Tracker:
         imu_clock_drift_ppm: float = 0.0,
         clock: Callable[[], float] | None = None,
     ) -> None:
-        imu_clock = (_time("Tracker", imu_time_offset), _time("Tracker", imu_clock_drift_ppm))
-        if not (math.isfinite(imu_clock[0]) and abs(imu_clock[1]) <= MAX_CLOCK_DRIFT_PPM):
-            raise ValueError(f"Tracker: expected a finite imu_time_offset (s) and "
-                             f"|imu_clock_drift_ppm| <= {MAX_CLOCK_DRIFT_PPM:g}, got {imu_clock}")
-        self.imu_clock = imu_clock
+        self.imu_clock = check_clock(imu_time_offset, imu_clock_drift_ppm, "Tracker")
         if clock is not None and not callable(clock):
             raise ValueError(f"Tracker: clock: expected a function returning the time in s, "
                              f"got {type(clock).__name__}")
@@ -898,7 +896,9 @@ class Tracker:
         """Feed one IMU sample.
 
         Args:
-            t: sample time, s.
+            t: sample time, s, on the IMU's own clock (mapped onto the mocap clock with
+                ``imu_time_offset`` and ``imu_clock_drift_ppm``; with neither given the two
+                clocks are one).
             acc: (3,) specific force, m/s^2, IMU frame.
             gyro: (3,) angular rate, rad/s, IMU frame.
 

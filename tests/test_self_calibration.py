@@ -155,6 +155,45 @@ def test_a_slow_arm_lift_is_timed_by_the_accelerometer():
     assert any("from the accelerometer" in line for line in result.report())
 
 
+def _with_clock(recording, offset, drift_ppm=0.0):
+    """The recording with recording.yaml's clock fields replaced (the stamps untouched)."""
+    return dataclasses.replace(recording, info=dataclasses.replace(
+        recording.info, imu_time_offset=offset, imu_clock_drift_ppm=drift_ppm))
+
+
+def test_check_times_a_slow_arm_lift_by_the_accelerometer():
+    # the gyroscope's correlation cannot time arm_lift, so check used to pass a clock written
+    # 100 ms wrong; the accelerometer times it (and a right one passes)
+    recording = simulate("arm_lift", seed=0, duration=15.0).recording
+    assert diagnose(recording).ok
+    diagnosis = diagnose(_with_clock(recording, 0.1))
+    assert not diagnosis.ok
+    assert re.match(r"IMU clock about (99\.\d|100\.\d) ms ahead of the mocap \(timed by the "
+                    "accelerometer", diagnosis.problems[0]), diagnosis.problems
+    # a latency the filter would apply is part of the clock tested
+    assert not diagnose(recording, imu_latency_s=0.05).ok
+
+
+def test_check_finds_a_drift_that_recording_yaml_leaves_out():
+    # the IMU's clock runs 600 ppm slow (9 ms over 15 s, 0 on average); recording.yaml says
+    # nothing of it (a simulated recording's yaml never does), then says it right
+    simulation = simulate("random_reach", seed=0, duration=15.0, imu_time_offset=-0.0045,
+                          imu_clock_drift_ppm=600.0)
+    recording = simulation.recording
+    diagnosis = diagnose(recording)
+    assert not diagnosis.ok and "IMU clock drifts" in diagnosis.problems[0], diagnosis.problems
+    assert diagnose(_with_clock(recording, -0.0045, 600.0)).ok
+
+
+def test_calibrate_measures_the_drift_by_the_accelerometer_when_the_gyroscope_cannot():
+    simulation = simulate("arm_lift", seed=2, duration=120.0, imu_time_offset=0.037,
+                          imu_clock_drift_ppm=-80.0)
+    result = calibrate_recording(_with_clock(simulation.recording, 0.0))
+    assert "imu_clock_drift_ppm" not in result.undetermined
+    assert abs(result.info.imu_clock_drift_ppm + 80.0) < 10.0
+    assert abs(result.info.imu_time_offset - 0.037) < 1e-3
+
+
 def test_rotation_about_one_axis_leaves_the_mount_undetermined():
     # the limb only turns about body z: the mount's rotation about it cannot be seen
     rng = np.random.default_rng(3)
@@ -249,6 +288,36 @@ def test_recording_info_clock_and_noise_keys():
     assert np.isnan(parse_info({}, require_mount=False).imu_to_body).all()
 
 
+def test_clock_values_written_as_users_write_them(tmp_path):
+    # YAML 1.1 reads `1e-3` (no dot) as text: recording.yaml and Tracker.from_yaml used to
+    # refuse it; an IMU stamped in Unix time (offset -1.7e9 s) must be describable
+    path = tmp_path / "recording.yaml"
+    path.write_text("imu_to_body: [1, 0, 0, 0]\ngravity: [0, -9.81, 0]\n"
+                    "imu_time_offset: -1.7e9\nimu_noise: {accelerometer_noise_density: 3e-3}\n")
+    info = read_info(path)
+    assert info.imu_time_offset == -1.7e9
+    assert info.imu_noise.accelerometer_noise_density == 0.003
+    assert Tracker.from_yaml(path).imu_clock == (-1.7e9, 0.0)
+    # the Python API checks what parse_info checks: no bool, text, list or NaN offset
+    for value in (True, "0.003", [0.003], float("nan"), 1e11):
+        with pytest.raises(ValueError, match="imu_time_offset: expected a finite number"):
+            dataclasses.replace(info, imu_time_offset=value)
+        with pytest.raises(ValueError, match="Tracker: imu_time_offset"):
+            Tracker(info.imu_to_body, info.gravity, imu_time_offset=value)
+
+
+def test_the_quick_cut_is_taken_on_the_mocap_clock():
+    from kfusion.config import first_seconds
+
+    recording = simulate("random_reach", seed=0, duration=12.0).recording
+    imu = recording.imu
+    late = dataclasses.replace(_with_clock(recording, -1000.0),
+                               imu=ImuSamples(imu.t + 1000.0, imu.accelerometer, imu.gyroscope))
+    cut, reference = first_seconds(late, 5.0), first_seconds(recording, 5.0)
+    assert len(cut.imu) == len(reference.imu) > 900
+    assert len(cut.mocap) == len(reference.mocap)
+
+
 def test_every_method_and_the_tracker_honour_the_clock_model(shifted):
     synced = on_mocap_clock(dataclasses.replace(shifted.recording, info=dataclasses.replace(
         shifted.recording.info, imu_time_offset=1.3, imu_clock_drift_ppm=60.0)))
@@ -292,6 +361,32 @@ def test_calibrate_check_and_track_commands(tmp_path, capsys):
     assert yaml.safe_load((folder / "recording.yaml").read_text())["imu_noise"]
     assert main(["check", str(folder)]) == 0
     assert main(["track", str(folder), "--out", str(out)]) == 0
+
+
+def test_track_tests_the_clock_with_an_overridden_latency(tmp_path, capsys):
+    folder = write_recording(simulate("random_reach", seed=1, duration=10.0).recording,
+                             tmp_path / "recording")
+    out = tmp_path / "track.csv"
+    assert main(["track", str(folder), "--set", "imu_latency_s=0.2", "--out", str(out)]) == 2
+    error = capsys.readouterr().err
+    assert "IMU clock about 200 ms" in error and "imu_latency_s" in error and not out.exists()
+
+
+def test_the_papers_calibration_pairs_samples_on_the_mocap_clock(tmp_path, capsys):
+    # IMU stamped 1.234 s behind, stated in recording.yaml: the still poses and rate pairs
+    # must be taken on the mocap clock (the mount came out 172 deg off)
+    truth = simulate("random_reach", seed=1, duration=20.0).recording
+    stamps = truth.imu.t - 1.234
+    shifted = dataclasses.replace(
+        _with_clock(truth, 1.234),
+        imu=ImuSamples(stamps, truth.imu.accelerometer, truth.imu.gyroscope))
+    folder = write_recording(shifted, tmp_path / "recording")
+    assert main(["calibrate", str(folder), "--paper", "--angular-rate",
+                 "--out", str(tmp_path / "paper.yaml")]) == 0
+    capsys.readouterr()
+    mount = read_info(tmp_path / "paper.yaml").imu_to_body
+    error = (rotation_from_wxyz(mount).inv() * rotation_from_wxyz(truth.info.imu_to_body))
+    assert np.degrees(error.magnitude()) < 5.0
 
 
 def test_a_still_limb_names_the_clock_and_does_not_accuse_the_gravity(tmp_path, capsys):

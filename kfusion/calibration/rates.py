@@ -266,8 +266,8 @@ def calibrate_clock_and_mount(recording: Recording, coarse_offset: float, *,
         else:
             undetermined["imu_clock_drift_ppm"] = (
                 f"drift {drifting.drift_ppm:+.0f} +- {drifting.drift_std_ppm:.0f} ppm over "
-                f"{duration:.0f} s is not significant: left at 0 (a longer recording "
-                "measures it)")
+                f"{duration:.0f} s is not determined within {MAX_DRIFT_STD_PPM:g} ppm: left at "
+                "0 (a longer recording with more rotation measures it)")
     else:
         undetermined["imu_clock_drift_ppm"] = (
             f"only {len(windows.offset)} window(s) of {window:.0f} s with enough rotation: "

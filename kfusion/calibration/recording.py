@@ -18,6 +18,7 @@ from kfusion.calibration.clock import Correlation, coarse_clock_offset
 from kfusion.calibration.noise import NoiseEstimate, estimate_noise
 from kfusion.calibration.rates import (
     CLOCK_UNDETERMINED,
+    MAX_DRIFT_STD_PPM,
     MAX_OFFSET_STD_S,
     ClockAndMount,
     calibrate_clock_and_mount,
@@ -110,15 +111,23 @@ class SelfCalibration:
         if accelerometer is None:
             line("imu_time_offset", gyroscope + ", from the gyroscope")
         else:
-            lag = (accelerometer.offset - fit.offset) * 1e3
+            lag = accelerometer.offset - fit.offset
+            lag_std = float(np.hypot(accelerometer.offset_std, fit.offset_std))
+            relation = (f"the accelerometer is timed {abs(lag) * 1e3:.2f} ms "
+                        f"{'earlier' if lag > 0 else 'later'} than the gyroscope"
+                        if abs(lag) > 3.0 * lag_std else "the two agree within 3 sigma")
             line("imu_time_offset",
                  f"{accelerometer.offset * 1e3:+.3f} ms +- {accelerometer.offset_std * 1e3:.3f} "
                  f"ms from the accelerometer against the mocap acceleration (specific-force "
                  f"residual {accelerometer.residual_rms:.3f} m/s^2 RMS); the gyroscope gives "
-                 f"{gyroscope}: the accelerometer is timed {abs(lag):.2f} ms "
-                 f"{'earlier' if lag > 0 else 'later'} than the gyroscope")
-        line("imu_clock_drift_ppm", f"{fit.drift_ppm:+.1f} +- {fit.drift_std_ppm:.1f} ppm "
-             f"({len(self.clock_and_mount.windows.offset)} windows)")
+                 f"{gyroscope}: {relation}")
+        if accelerometer is not None and np.isfinite(accelerometer.drift_std_ppm):
+            line("imu_clock_drift_ppm", f"{accelerometer.drift_ppm:+.1f} +- "
+                 f"{accelerometer.drift_std_ppm:.1f} ppm from the accelerometer (the gyroscope's "
+                 f"windows did not determine it)")
+        else:
+            line("imu_clock_drift_ppm", f"{fit.drift_ppm:+.1f} +- {fit.drift_std_ppm:.1f} ppm "
+                 f"({len(self.clock_and_mount.windows.offset)} windows)")
         std = np.round(fit.mount_std_deg, 3).tolist()
         line("imu_to_body", f"{np.round(fit.imu_to_body, 6).tolist()} +- {std} deg about body "
              f"x, y, z (rate residual {fit.residual_rms:.3f} rad/s RMS)")
@@ -197,10 +206,12 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     fit = clock_and_mount.fit
     undetermined = dict(clock_and_mount.undetermined)
     accelerometer = accelerometer_timing(recording, clock_and_mount)
-    offset = fit.offset
+    offset, drift = fit.offset, fit.drift_ppm
     if accelerometer is not None:
-        offset = accelerometer.offset
+        offset, drift = accelerometer.offset, accelerometer.drift_ppm
         undetermined.pop("imu_time_offset", None)
+        if np.isfinite(accelerometer.drift_std_ppm):
+            undetermined.pop("imu_clock_drift_ppm", None)
         if undetermined.get("imu_to_body") == CLOCK_UNDETERMINED:
             del undetermined["imu_to_body"]
             reason = mount_undetermined(clock_and_mount.principal_rates,
@@ -215,7 +226,7 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     force: SpecificForceFit | None = None
     if prerequisite is None:
         try:
-            force = fit_specific_force(recording, offset, fit.drift_ppm, fit.imu_to_body)
+            force = fit_specific_force(recording, offset, drift, fit.imu_to_body)
         except ValueError:
             force = None
     gravity = _gravity(np.asarray(recording.info.gravity, dtype=float), force, undetermined,
@@ -238,7 +249,7 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
         imu_to_body=mount, gravity=gravity, name=recording.info.name, imu=recording.info.imu,
         lever_arm=lever_arm,
         imu_time_offset=0.0 if "imu_time_offset" in undetermined else offset,
-        imu_clock_drift_ppm=0.0 if "imu_clock_drift_ppm" in undetermined else fit.drift_ppm,
+        imu_clock_drift_ppm=0.0 if "imu_clock_drift_ppm" in undetermined else drift,
         imu_noise=ImuNoise(accelerometer_noise_density=noise.accelerometer_noise_density,
                            gyroscope_noise_density=noise.gyroscope_noise_density),
         markers=recording.info.markers)
@@ -258,17 +269,25 @@ def accelerometer_timing(recording: Recording, clock_and_mount: ClockAndMount
     (or 3 sigma of the gyroscope's offset) of where it started. The filter dead-reckons the
     position with the accelerometer, so its timing is the one written: it is also the better
     determined one on slow rotations (simulated arm lift: +-0.2-0.3 ms against +-7-9 ms from
-    the gyroscope)."""
+    the gyroscope).
+
+    The drift: the gyroscope's when it determined it (kept fixed; ``drift_std_ppm`` NaN);
+    else fitted with the offset, and when that is not within :data:`MAX_DRIFT_STD_PPM` either,
+    the offset is refitted at the gyroscope's drift (0 then: the recording's mean offset)."""
     fit = clock_and_mount.fit
     if clock_and_mount.undetermined.get("imu_to_body", CLOCK_UNDETERMINED) != CLOCK_UNDETERMINED:
         return None
+    fit_drift = "imu_clock_drift_ppm" in clock_and_mount.undetermined
     try:
         accelerometer = fit_accelerometer_offset(recording, fit.offset, fit.drift_ppm,
-                                                 fit.imu_to_body)
+                                                 fit.imu_to_body, fit_drift=fit_drift)
+        if fit_drift and not accelerometer.drift_std_ppm <= MAX_DRIFT_STD_PPM:
+            accelerometer = fit_accelerometer_offset(recording, fit.offset, fit.drift_ppm,
+                                                     fit.imu_to_body)
     except ValueError:
         return None
     reach = max(ACCELEROMETER_OFFSET_RANGE_S, 3.0 * fit.offset_std)
-    if not (np.isfinite(accelerometer.offset_std)
+    if not (accelerometer.converged and np.isfinite(accelerometer.offset_std)
             and accelerometer.offset_std <= MAX_OFFSET_STD_S
             and abs(accelerometer.offset - fit.offset) <= reach):
         return None

@@ -132,14 +132,22 @@ def _filter(values: Array, rate: float, cutoff: float) -> Array:
 
 def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
                           imu_to_body: ArrayLike, *, cutoff_hz: float = CUTOFF_HZ,
-                          time_shift: bool = False) -> tuple[Array, Array]:
+                          time_shift: bool = False, drift_shift: bool = False,
+                          reference_time: float = 0.0) -> tuple[Array, Array]:
     """The filtered linear system ``y (k, 3) = A (k, 3, 18) x`` of the module docstring, over
     every visible mocap run of at least :data:`MIN_RUN_S` inside the IMU's span.
 
-    With ``time_shift`` A has a 19th column for a correction ``delta`` (s) of ``offset``: the
-    true offset is ``offset + delta``, so the IMU is read ``delta`` too late on the IMU clock
-    and, to first order, ``R_global_imu f(tau) = R_global_imu f(tau_true) + R_global_imu
-    f'(tau) delta`` (:func:`fit_accelerometer_offset`)."""
+    With ``time_shift`` A has a 19th column for a correction ``delta_c`` (s) of ``offset``, and
+    with ``drift_shift`` also a 20th for a correction ``delta_d`` (ppm) of ``drift_ppm``. The
+    IMU is read at ``tau = (t - offset) / (1 + drift_ppm 1e-6)``; against the true clock,
+    ``tau - tau_true ~ delta_c + tau delta_d 1e-6``, so to first order
+
+        R_global_imu f(tau) = R_global_imu f(tau_true) + R_global_imu f'(tau) (delta_m
+                              + (tau - tau_ref) delta_d 1e-6)
+
+    with ``delta_m = delta_c + tau_ref delta_d 1e-6`` the correction at ``tau_ref =
+    reference_time`` (IMU clock, s; the recording's middle keeps the two columns apart)
+    (:func:`fit_accelerometer_offset`)."""
     imu, mocap = recording.imu, recording.mocap
     R_body_imu = matrix_from_wxyz(imu_to_body)
     angular_acceleration = np.gradient(imu.gyroscope, imu.t, axis=0)
@@ -173,7 +181,10 @@ def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
         scale = np.einsum("nik,jkl,nl->nij", R_global_imu, SCALE_ERROR_BASIS, force)
         blocks = [np.broadcast_to(-np.eye(3), lever.shape), lever, R_global_imu, scale]
         if force_rate is not None:
-            blocks.append(np.einsum("nij,nj->ni", R_global_imu, at(force_rate))[:, :, None])
+            shift = np.einsum("nij,nj->ni", R_global_imu, at(force_rate))[:, :, None]
+            blocks.append(shift)
+            if drift_shift:
+                blocks.append(shift * ((tau - reference_time) * 1e-6)[:, None, None])
         design = np.concatenate(blocks, axis=2)
         # filter the IMU side like the mocap side (the acceleration is already filtered)
         y = _filter(y + acceleration, rate, cutoff_hz) - acceleration
@@ -248,48 +259,78 @@ class AccelerometerClock:
 
     Attributes:
         offset, offset_std: s, the IMU clock offset that times the accelerometer against the
-            mocap's acceleration, and its 1-sigma.
+            mocap's acceleration (``c`` of the clock model, at IMU time 0), and its 1-sigma.
+        middle_offset, middle_offset_std: s, the offset at the middle of the recording,
+            ``c + d 1e-6 tau_middle`` (what the whole recording is shifted by on average).
+        drift_ppm, drift_std_ppm: the drift used (fitted, or as given with std NaN).
         iterations: Gauss-Newton steps taken.
         residual_rms: RMS misfit per axis at ``offset``, m/s^2 (filtered).
+        converged: the last step was below :data:`TIME_SHIFT_TOLERANCE_S`.
     """
 
     offset: float
     offset_std: float
+    middle_offset: float
+    middle_offset_std: float
+    drift_ppm: float
+    drift_std_ppm: float
     iterations: int
     residual_rms: float
+    converged: bool
 
 
 def fit_accelerometer_offset(recording: Recording, offset: float, drift_ppm: float,
                              imu_to_body: ArrayLike, *, cutoff_hz: float = CUTOFF_HZ,
+                             fit_drift: bool = False,
                              max_iterations: int = MAX_TIME_SHIFT_ITERATIONS
                              ) -> AccelerometerClock:
-    """The clock offset (s) at which the accelerometer best matches the mocap's specific force,
-    starting from ``offset`` (the gyroscope's): Gauss-Newton on the linear system of
-    :func:`specific_force_system` with its time-shift column,
+    """The clock offset (s), and with ``fit_drift`` the drift (ppm), at which the accelerometer
+    best matches the mocap's specific force, starting from ``offset`` and ``drift_ppm`` (the
+    gyroscope's): Gauss-Newton on the linear system of :func:`specific_force_system` with its
+    time-shift columns,
 
-        y(offset) = A x + R_global_imu f'(tau) delta,   offset <- offset + delta,
+        y(offset, drift) = A x + R_global_imu f'(tau) (delta_m + (tau - tau_m) delta_d 1e-6),
+        offset <- offset + delta_m - tau_m delta_d 1e-6,  drift <- drift + delta_d,
 
-    repeated until ``|delta|`` < :data:`TIME_SHIFT_TOLERANCE_S`. The accelerometer is what the
+(``tau_m`` the middle of the IMU's span, where offset and drift are uncorrelated)
+    repeated until ``|delta_c|`` < :data:`TIME_SHIFT_TOLERANCE_S`. The accelerometer is what the
     filter dead-reckons with, and an IMU's accelerometer and gyroscope can lag by different
     amounts (their on-chip filters differ: on BROAD the accelerometer is timed about 1 ms
     later than the gyroscope), so this is the offset a gap's position error depends on.
     ValueError as :func:`specific_force_system`."""
     rate = 1.0 / float(np.median(np.diff(recording.mocap.t)))
     correlation = max(1.0, rate / (2.0 * cutoff_hz))
-    delta, std, residual = np.inf, np.inf, np.full((1, 3), np.nan)
+    middle = 0.5 * float(recording.imu.t[0] + recording.imu.t[-1])
+    delta, middle_std, std, drift_std = np.inf, np.inf, np.inf, np.nan
+    residual = np.full((1, 3), np.nan)
     iterations = 0
     while iterations < max_iterations and abs(delta) >= TIME_SHIFT_TOLERANCE_S:
         y, design = specific_force_system(recording, offset, drift_ppm, imu_to_body,
-                                          cutoff_hz=cutoff_hz, time_shift=True)
+                                          cutoff_hz=cutoff_hz, time_shift=True,
+                                          drift_shift=fit_drift, reference_time=middle)
         x, covariance, residual = solve_specific_force(y, design, correlation=correlation)
         if not np.max(np.sqrt(np.diag(covariance)[6:9])) <= MAX_BIAS_STD:
             x, covariance, residual = solve_specific_force(y, design, fit_bias=False,
                                                            correlation=correlation)
-        delta, std = float(x[-1]), float(np.sqrt(max(covariance[-1, -1], 0.0)))
-        offset += delta
+        delta = float(x[UNKNOWNS])
+        middle_std = std = float(np.sqrt(max(covariance[UNKNOWNS, UNKNOWNS], 0.0)))
+        if fit_drift:
+            # c = m - tau_m d 1e-6: J = [1, -tau_m 1e-6] on (delta_m, delta_d)
+            jacobian = np.array([1.0, -middle * 1e-6])
+            clock = covariance[UNKNOWNS:, UNKNOWNS:]
+            std = float(np.sqrt(max(jacobian @ clock @ jacobian, 0.0)))
+            drift_std = float(np.sqrt(max(clock[1, 1], 0.0)))
+            drift_ppm += float(x[UNKNOWNS + 1])
+            offset += delta - middle * 1e-6 * float(x[UNKNOWNS + 1])
+        else:
+            offset += delta
         iterations += 1
-    return AccelerometerClock(offset=offset, offset_std=std, iterations=iterations,
-                              residual_rms=float(np.sqrt(np.mean(residual**2))))
+    middle_offset = offset + middle * 1e-6 * drift_ppm
+    return AccelerometerClock(offset=offset, offset_std=std, middle_offset=middle_offset,
+                              middle_offset_std=middle_std, drift_ppm=drift_ppm,
+                              drift_std_ppm=drift_std, iterations=iterations,
+                              residual_rms=float(np.sqrt(np.mean(residual**2))),
+                              converged=abs(delta) < TIME_SHIFT_TOLERANCE_S)
 
 
 def fit_specific_force(recording: Recording, offset: float, drift_ppm: float,

@@ -40,6 +40,7 @@ from kfusion.recording import (
     Recording,
     RecordingError,
     info_to_dict,
+    on_mocap_clock,
     parse_info,
     read_imu,
     read_info,
@@ -144,11 +145,13 @@ def _run_paper(args: argparse.Namespace, recording: Recording) -> int:
     if not np.isfinite(recording.info.gravity).all():
         recording = dataclasses.replace(recording, info=dataclasses.replace(
             recording.info, gravity=np.asarray(OPTITRACK_GRAVITY)))
+    # the still poses and rate pairs pair IMU and mocap samples in time: on the mocap clock
+    timed = on_mocap_clock(recording)
     rotation = calibrate_imu_to_body(
-        recording, gyroscope_threshold=args.gyroscope_threshold,
+        timed, gyroscope_threshold=args.gyroscope_threshold,
         gravity_tolerance=args.gravity_tolerance, still_duration=args.still_duration,
         min_pose_angle=args.min_pose_angle, use_angular_rate=args.angular_rate)
-    gain = calibrate_gain(recording, rotation.imu_to_body)
+    gain = calibrate_gain(timed, rotation.imu_to_body)
     info = dataclasses.replace(recording.info, imu_to_body=rotation.imu_to_body)
     text = yaml.safe_dump(info_to_dict(info), sort_keys=False)
     summary = [

@@ -66,10 +66,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     recording = read_recording(args.folder, zero_position_means_occluded=args.zeros_occluded)
-    diagnosis = diagnose(recording)
+    options = parse_options(args.options, args.method)
+    # the clock is tested as the filter will take it: with an overridden IMU latency
+    latency = float(options.get("imu_latency_s", 0.0))
+    diagnosis = diagnose(recording, imu_latency_s=latency)
     if not diagnosis.ok and not args.force:
-        raise ValueError(f"{args.folder}: {diagnosis.problems[0]} (or pass --force)")
-    result = track_with_method(recording, args.method, **parse_options(args.options, args.method))
+        shifted = f" with imu_latency_s = {latency:g} s" if latency else ""
+        raise ValueError(f"{args.folder}{shifted}: {diagnosis.problems[0]} (or pass --force)")
+    result = track_with_method(recording, args.method, **options)
     path = write_track_csv(result, args.out)
     counts = {status: int(np.sum(result.status == status)) for status in STATUSES}
     summary = ", ".join(f"{count} {status}" for status, count in counts.items())
