@@ -224,9 +224,27 @@ def apply_monitor(status: NDArray[np.str_], variance: NDArray[np.float64],
     return status.astype(str), variance, scale
 
 
+def fix_only_rows(status: NDArray[np.str_], position: NDArray[np.float64],
+                  variance: NDArray[np.float64], allowed: NDArray[np.bool_],
+                  fix_position: NDArray[np.float64], fix_variance: NDArray[np.float64]
+                  ) -> tuple[NDArray[np.str_], NDArray[np.float64], NDArray[np.float64]]:
+    """Rows where the monitor refused the IMU model (``~allowed``): a row with a fix
+    (finite ``fix_position`` (m, 3) m) is that fix alone with ``fix_variance`` (m, 3) m^2 (the
+    mocap noise, and the rivals it must hold), any other row is lost, as the Tracker reads it
+    (:meth:`kfusion.monitor.ConsistencyMonitor.fix_only`). Returns (status, position,
+    variance)."""
+    refused = ~allowed
+    at_fix = refused & np.isfinite(fix_position).all(axis=1)
+    position = np.where(at_fix[:, None], fix_position, position)
+    variance = np.where(at_fix[:, None], fix_variance, variance)
+    status = np.where(refused & ~at_fix, LOST, status)
+    return status.astype(str), position, variance
+
+
 class _RowRecorder:
-    """Collects the filter's state and output map after each mocap row (and the monitor's
-    scales, where the row's fix was not used)."""
+    """Collects the filter's state and output map after each mocap row, the monitor's scales
+    where the row's fix was not used, and whether the monitor still trusts the IMU model (with
+    the fix alone where it does not)."""
 
     def __init__(self, fusion: KalmanFusion, rows: int,
                  monitor: ConsistencyMonitor | None = None) -> None:
@@ -245,15 +263,25 @@ class _RowRecorder:
         self.dead_reckoned = np.zeros(rows, dtype=bool)
         # (m, 3) m^2: variance the monitor's rival hypotheses add per axis (cover_rivals)
         self.rival_variance = np.zeros((rows, 3))
+        # where the monitor refused the IMU model at a fix: that fix (m) and its variance
+        # (m^2, the mocap noise and the rivals), NaN elsewhere
+        self.fix_position = np.full((rows, 3), np.nan)
+        self.fix_variance = np.full((rows, 3), np.nan)
 
     def record(self, row: int, outcome: UpdateOutcome) -> None:
         fusion = self.fusion
         self.outcome[row] = outcome.kind
         self.nis[row] = outcome.nis
         self.dead_reckoned[row] = outcome.t <= fusion.dead_reckoning_until()
-        if self.monitor is not None and not outcome.accepted:
-            self.scale_tables[row] = self.monitor.scale_table()
+        if self.monitor is not None:
             self.allowed[row] = self.monitor.bridging_allowed
+            if not outcome.accepted:
+                self.scale_tables[row] = self.monitor.scale_table()
+            fix = None if self.allowed[row] else self.monitor.fix_only(outcome.t)
+            if fix is not None:
+                covariance = self.monitor.cover_rivals(outcome.t, fix[0], fix[1])
+                self.fix_position[row] = fix[0]
+                self.fix_variance[row] = np.diag(covariance)
         if fusion.initialised:
             self.x[row] = fusion._kf.x
             self.P[row] = fusion._kf.P
@@ -297,6 +325,9 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
                                                 recorder.allowed, since,
                                                 watcher.params.horizon_edges_s)
         variance = variance + recorder.rival_variance
+        status, position, variance = fix_only_rows(status, position, variance,
+                                                   recorder.allowed, recorder.fix_position,
+                                                   recorder.fix_variance)
     std = np.sqrt(variance)
     result = TrackResult(t=np.array(recording.mocap.t), position=position, std=std,
                          status=status, time_since_fix=since, method="kalman")

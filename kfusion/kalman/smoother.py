@@ -46,6 +46,7 @@ from kfusion.conventions import BRIDGED, TRACKED
 from kfusion.kalman.batch import (
     _RowRecorder,
     apply_monitor,
+    fix_only_rows,
     make_fusion,
     make_monitor,
     point_estimates,
@@ -292,6 +293,9 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                                                      recorder.scale_tables, recorder.allowed,
                                                      since, watcher.params.horizon_edges_s)
         variance = variance + recorder.rival_variance
+        filtered_status, position, variance = fix_only_rows(
+            filtered_status, position, variance, recorder.allowed, recorder.fix_position,
+            recorder.fix_variance)
     filtered = TrackResult(t=t, position=position, std=np.sqrt(variance),
                            status=filtered_status, time_since_fix=since, method="kalman")
     status = smoothed_status
@@ -310,6 +314,16 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         # the forward pass's rival hypotheses (a gated fix, or the prediction a fix replaced
         # after gating) are positions the data left open: the smoothed bound holds them too
         variance = variance + recorder.rival_variance
+    # the smoothed rows are built on the IMU model wherever they are: when the hold-out or the
+    # forward monitor (anywhere in the recording) refused it, a row with a fix is that fix
+    # alone and every other row is lost
+    trusted = (holdout is None or bool(allowed.all())) and bool(recorder.allowed.all())
+    if not trusted:
+        fix_position = np.where(fixed[:, None], recording.mocap.position, np.nan)
+        fix_variance = params.mocap_position_noise ** 2 + recorder.rival_variance
+        status, position, variance = fix_only_rows(status, position, variance,
+                                                   np.zeros(m, dtype=bool), fix_position,
+                                                   fix_variance)
     std = np.sqrt(variance)
     return SmootherRun(
         result=TrackResult(t=t, position=position, std=std, status=status,

@@ -1,0 +1,96 @@
+"""When the consistency monitor refuses the IMU model, batch and stream say the same thing.
+
+The Tracker then shows, at a fix, that fix alone (covariance R) and nothing between fixes
+(:meth:`kfusion.monitor.ConsistencyMonitor.fix_only`). ``kfusion track`` and the smoother used to
+keep the fused posterior at fixes, built on the broken model: on a slow arm lift whose
+``recording.yaml`` puts the IMU clock 100 ms off, 233 rows were ``tracked`` with errors up to 12x
+their 99 % bound (8.65 mm against 0.70 mm), and batch and stream differed by up to 8.4 mm.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from kfusion.kalman import run_filter, run_smoother
+from kfusion.kalman.events import IMU_STREAM, merge_events
+from kfusion.simulate import simulate
+from kfusion.tracker import Tracker, position_bound
+
+
+@pytest.fixture(scope="module")
+def clock_written_wrong():
+    """arm_lift, 15 s, IMU and mocap on one clock; recording.yaml says the IMU is 100 ms
+    behind. Returns (recording, truth positions at the mocap rows)."""
+    simulation = simulate("arm_lift", seed=0, duration=15.0)
+    recording = simulation.recording
+    wrong = dataclasses.replace(recording, info=dataclasses.replace(recording.info,
+                                                                    imu_time_offset=0.1))
+    truth = np.asarray(simulation.truth.position)
+    return wrong, truth
+
+
+def _stream(recording) -> dict[str, np.ndarray]:
+    """The Tracker fed in the fusion order, read at each mocap row right after its frame."""
+    tracker = Tracker.from_recording_info(recording.info)
+    imu, mocap = recording.imu, recording.mocap
+    info = recording.info
+    mapped = (1.0 + info.imu_clock_drift_ppm * 1e-6) * imu.t + info.imu_time_offset
+    m = len(mocap)
+    position, std = np.full((m, 3), np.nan), np.full((m, 3), np.nan)
+    status = np.empty(m, dtype=object)
+    for _, stream, index in merge_events(mapped.tolist(), mocap.t.tolist(), 0.0):
+        if stream == IMU_STREAM:
+            tracker.push_imu(imu.t[index], imu.accelerometer[index], imu.gyroscope[index])
+            continue
+        visible = bool(mocap.visible[index])
+        tracker.push_mocap(mocap.t[index], mocap.position[index] if visible else None,
+                           mocap.quaternion[index] if visible else None)
+        estimate = tracker.estimate(mocap.t[index])
+        position[index], std[index], status[index] = (estimate.position, estimate.std,
+                                                      estimate.status)
+    return {"position": position, "std": std, "status": status.astype(str),
+            "refused": not tracker.consistency.bridging_allowed}
+
+
+def _confidently_wrong(position, std, status, truth) -> float:
+    """Fraction of rows not lost whose error exceeds the 99 % bound of a diagonal covariance."""
+    shown = status != "lost"
+    error = np.linalg.norm(position[shown] - truth[shown], axis=1)
+    bound = np.array([position_bound(np.diag(s**2), 0.99) for s in std[shown]])
+    return float(np.mean(error > bound))
+
+
+def test_kfusion_track_shows_the_fix_alone_once_the_monitor_refuses(clock_written_wrong):
+    recording, truth = clock_written_wrong
+    run = run_filter(recording)
+    assert not run.monitor.bridging_allowed
+    stream = _stream(recording)
+    assert stream["refused"]
+    batch = run.result
+    np.testing.assert_array_equal(batch.status, stream["status"])
+    np.testing.assert_allclose(batch.position, stream["position"], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(batch.std, stream["std"], rtol=0, atol=1e-12)
+    # after the refusal: tracked rows are the mocap fixes, with the mocap noise as std
+    noise = run.params.mocap_position_noise
+    refused_at = np.flatnonzero(batch.status == "lost")[0]
+    later = np.arange(len(batch.t)) > refused_at
+    tracked = later & (batch.status == "tracked")
+    assert tracked.sum() > 100
+    np.testing.assert_array_equal(batch.position[tracked], recording.mocap.position[tracked])
+    assert np.all(batch.std[tracked] >= noise)
+    assert np.all(batch.status[later & ~recording.mocap.visible] == "lost")
+    assert _confidently_wrong(batch.position[later], batch.std[later], batch.status[later],
+                              truth[later]) <= 0.01
+
+
+def test_the_smoother_refuses_with_the_filter(clock_written_wrong):
+    recording, truth = clock_written_wrong
+    run = run_smoother(recording)
+    result = run.result
+    fixed = np.isin(result.status, ("tracked",))
+    assert np.all(result.status[~recording.mocap.visible] == "lost")
+    np.testing.assert_array_equal(result.position[fixed], recording.mocap.position[fixed])
+    assert _confidently_wrong(result.position, result.std, result.status, truth) <= 0.01
