@@ -797,6 +797,8 @@ class Tracker:
         self._replays = 0
         self._log: deque[tuple] = deque()
         self._checkpoints: deque[_Checkpoint] = deque()
+        self._pending: deque[tuple] = deque()
+        self._newest: tuple[float, int] | None = None
         self._start_streams(keep_counters=False)
 
     # ---- construction helpers ---------------------------------------------------------------
@@ -1000,12 +1002,15 @@ class Tracker:
         no "now", and an estimate at the newest sample's time would look current after the
         streams stopped: ValueError. A later ``t`` than the newest sample extrapolates with the
         last IMU sample held (for at most ``imu_dropout_s``; later a gap is ``lost``) and ages
-        ``time_since_fix``; the state is not changed. NaN position before any fix.
+        ``time_since_fix``; the fused result is not changed (frames waiting after a late IMU
+        sample are fused first: :meth:`_flush`). NaN position before any fix.
 
         Raises:
             ValueError: ``t`` missing without a clock, not a real number, or earlier than the
                 newest fused sample.
         """
+        if self._pending:
+            self._flush()
         book = self._book
         if t is None:
             if self._clock is None:
@@ -1053,7 +1058,7 @@ class Tracker:
     def newest_time(self) -> float:
         """Time (s) of the newest fused sample; NaN before any. Not "now": after the streams
         stop it stays put, so pass the caller's current time to :meth:`estimate`."""
-        return math.nan if self._book.key is None else self._book.key[0]
+        return math.nan if self._newest is None else self._newest[0]
 
     @property
     @_locked
@@ -1061,6 +1066,7 @@ class Tracker:
         """What the consistency monitor found (:mod:`kfusion.monitor`: windowed NIS, shadow
         gaps, the bound's scale, whether it bridges, the suspected cause); None for the
         baseline."""
+        self._flush()
         monitor = getattr(self._estimator, "monitor", None)
         return None if monitor is None else monitor.report()
 
@@ -1068,6 +1074,7 @@ class Tracker:
     @_locked
     def health(self) -> Health:
         """The health counters now (a frozen copy)."""
+        self._flush()
         imu, mocap, book = self._imu, self._mocap, self._book
         counts = book.counts
         gap = counts.longest_gap_s
@@ -1104,11 +1111,12 @@ class Tracker:
 
         :meth:`restore` into a tracker built with the same arguments continues bit-exactly.
         """
+        self._flush()
         state = copy.deepcopy({
             "estimator": self._estimator.snapshot(), "book": self._book, "imu": self._imu,
             "mocap": self._mocap, "log": self._log, "checkpoints": self._checkpoints,
             "resets": self._resets, "replays": self._replays, "watch": self._watch,
-            "guard": self._guard,
+            "guard": self._guard, "newest": self._newest,
         })
         newest = math.nan if self._book.key is None else self._book.key[0]
         return TrackerSnapshot(method=self.method, t=newest,
@@ -1134,9 +1142,11 @@ class Tracker:
         self._log, self._checkpoints = state["log"], state["checkpoints"]
         self._resets, self._replays = state["resets"], state["replays"]
         self._watch, self._guard = state["watch"], state["guard"]
+        self._newest, self._pending = state["newest"], deque()
 
     @_locked
     def __repr__(self) -> str:
+        self._flush()
         newest = None if self._book.key is None else self._book.key[0]
         return f"Tracker(method={self.method!r}, t={newest!r}, status={self._book.status!r})"
 
@@ -1160,6 +1170,8 @@ class Tracker:
             self._book = _Book()
         self._log = deque()
         self._checkpoints = deque()
+        self._pending = deque()
+        self._newest = None
         if self.options.max_delay_s > 0:
             self._checkpoints.append(_Checkpoint((-math.inf, -1), self._estimator.snapshot(),
                                                  self._book.copy()))
@@ -1193,39 +1205,78 @@ class Tracker:
     def _fuse(self, event: tuple) -> str | None:
         """Fuse a validated event in time order; its outcome, or None if too late to insert.
 
-        An event behind the newest fused one is inserted by restoring the newest checkpoint
-        before it and fusing the logged events after that checkpoint again, in time order.
+        After the newest fused event (the common case): fused now, after the pending frames
+        that come before it. Behind it: inserted by :meth:`_insert` (the late-arrival policy
+        in the module docstring).
         """
         key = (event[0], event[1])
-        book = self._book
-        if book.key is None or key > book.key:
-            result = self._process(event)
-            self._log_and_checkpoint(event)
-            return result
-        if event[0] < book.key[0] - self.options.max_delay_s:
+        newest = self._newest
+        if newest is None or key > newest:
+            self._newest = key
+            if self._pending:
+                self._flush()
+            return self._fuse_next(event)
+        if event[0] < newest[0] - self.options.max_delay_s:
             return None
+        fused = self._book.key
+        if fused is None or key > fused:  # behind pending frames only: no state to undo
+            self._flush(key)
+            return self._fuse_next(event)
+        return self._insert(event, key)
+
+    def _insert(self, event: tuple, key: tuple[float, int]) -> str | None:
+        """Fuse ``event`` (key ``key``) behind fused events: restore the newest checkpoint
+        before it and fuse the logged events after that checkpoint again, with ``event`` in
+        its place. The logged events after a late IMU sample are all mocap frames (the IMU
+        stream is in order): they wait as pending frames until the IMU passes them, a frame
+        follows or the state is read (:meth:`_flush`). After a late frame, everything is fused
+        again at once (its IMU samples come after it)."""
         checkpoints = self._checkpoints
-        index = next((i for i in range(len(checkpoints) - 1, -1, -1)
-                      if checkpoints[i].key < key), None)
-        if index is None:
+        index = len(checkpoints) - 1
+        while index >= 0 and not checkpoints[index].key < key:
+            index -= 1
+        if index < 0:
             return None
         checkpoint = checkpoints[index]
         while len(checkpoints) > index + 1:
             checkpoints.pop()
-        self._estimator.restore(copy.deepcopy(checkpoint.estimator))
+        self._estimator.restore(checkpoint.estimator)  # restore copies: the checkpoint stays
         self._book = checkpoint.book.copy()
-        later = []
-        while self._log and (self._log[-1][0], self._log[-1][1]) > checkpoint.key:
-            later.append(self._log.pop())
-        later.append(event)
-        later.sort(key=lambda logged: (logged[0], logged[1]))
+        log = self._log
+        later: list[tuple] = []
+        while log and (log[-1][0], log[-1][1]) > checkpoint.key:
+            later.append(log.pop())
+        later.reverse()
         self._replays += 1
-        outcome: str | None = None
-        for logged in later:
-            result = self._process(logged)
-            if logged is event:
-                outcome = result
-            self._log_and_checkpoint(logged)
+        while later and (later[0][0], later[0][1]) < key:
+            self._fuse_next(later.pop(0))
+        outcome = self._fuse_next(event)
+        if event[1] == IMU_STREAM:
+            self._pending.extendleft(reversed(later))  # frames, before any pending ones
+        else:
+            for logged in later:
+                self._fuse_next(logged)
+        return outcome
+
+    def _flush(self, before: tuple[float, int] | None = None) -> None:
+        """Fuse the pending frames (those with a key before ``before``; None: all)."""
+        pending = self._pending
+        while pending and (before is None or (pending[0][0], pending[0][1]) < before):
+            self._fuse_next(pending.popleft())
+
+    def _fuse_next(self, event: tuple) -> str:
+        """Fuse an event that comes after every fused one, log it and checkpoint around it."""
+        if self.options.max_delay_s <= 0:
+            return self._process(event)
+        checkpoints = self._checkpoints
+        book = self._book
+        if event[1] == MOCAP_STREAM and book.key is not None \
+                and checkpoints[-1].key != book.key:
+            # the state just before a frame: an IMU sample arriving behind the frame restores
+            # it and fuses only itself (and later the frame again)
+            checkpoints.append(_Checkpoint(book.key, self._estimator.snapshot(), book.copy()))
+        outcome = self._process(event)
+        self._log_and_checkpoint(event)
         return outcome
 
     def _process(self, event: tuple) -> str:
@@ -1330,28 +1381,28 @@ class Tracker:
         book.counts.time_lost_s += lost
 
     def _log_and_checkpoint(self, event: tuple) -> None:
-        """Keep the event and a checkpoint for replays within ``max_delay_s``; prune older.
+        """Keep the fused event and checkpoints for insertions within ``max_delay_s``; prune.
 
-        A checkpoint follows every mocap frame, and IMU samples when the last checkpoint is
-        ``checkpoint_interval_s`` old. The newest checkpoint at or before ``t - max_delay_s``
-        and everything after it are kept; the log holds the events after the oldest one.
+        Checkpoints: the state before every mocap frame (:meth:`_fuse_next`), and after an IMU
+        sample when the newest checkpoint is ``checkpoint_interval_s`` old. The newest
+        checkpoint at or before ``t - max_delay_s`` and everything after it are kept; the log
+        holds the events after the oldest one.
         """
-        delay = self.options.max_delay_s
-        if delay <= 0:
-            return
         t = event[0]
         log = self._log
         log.append(event)
         checkpoints = self._checkpoints
-        interval = self.options.checkpoint_interval_s
-        if event[1] == MOCAP_STREAM or t - checkpoints[-1].key[0] >= interval:
-            checkpoints.append(_Checkpoint((t, event[1]), self._estimator.snapshot(),
+        if event[1] == IMU_STREAM and t - checkpoints[-1].key[0] >= \
+                self.options.checkpoint_interval_s:
+            checkpoints.append(_Checkpoint((t, IMU_STREAM), self._estimator.snapshot(),
                                            self._book.copy()))
-            while len(checkpoints) > 1 and checkpoints[1].key[0] <= t - delay:
+        horizon = t - self.options.max_delay_s
+        if len(checkpoints) > 1 and checkpoints[1].key[0] <= horizon:
+            while len(checkpoints) > 1 and checkpoints[1].key[0] <= horizon:
                 checkpoints.popleft()
-        oldest = checkpoints[0].key
-        while log and (log[0][0], log[0][1]) <= oldest:
-            log.popleft()
+            oldest = checkpoints[0].key
+            while log and (log[0][0], log[0][1]) <= oldest:
+                log.popleft()
 
 
 CONFIG_KEYS: Final = ("imu_to_body", "gravity", "method", "imu", "lever_arm", "parameters",
