@@ -367,12 +367,13 @@ class HorizonScales:
         self._table = None
 
     def copy(self) -> HorizonScales:
-        """An independent copy (the rows are floats; the cached table is read-only)."""
+        """An independent copy (the rows are floats). The scale table is computed first and
+        shared (it is read-only), so a copy restored again and again does not recompute it."""
         other = HorizonScales.__new__(HorizonScales)
         other.params = self.params
         other._rows = [deque(rows, maxlen=rows.maxlen) for rows in self._rows]
         other.gaps = self.gaps
-        other._table = self._table
+        other._table = self.scale_table()
         return other
 
     def variance_scales(self) -> tuple[float, ...]:
