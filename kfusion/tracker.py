@@ -339,6 +339,11 @@ class TrackerSnapshot:
 _NUMERICAL_ERRORS: Final = (ArithmeticError, ValueError, np.linalg.LinAlgError)
 """What the estimator's maths may raise on overflowing numbers (math.sin(inf), singular S)."""
 
+_STREAMS_SEEN: Final[dict[tuple[bool, bool], set[int]]] = {
+    (False, False): set(), (True, False): {IMU_STREAM}, (False, True): {MOCAP_STREAM},
+    (True, True): {IMU_STREAM, MOCAP_STREAM}}
+"""The streams that delivered a sample, by (IMU seen, mocap seen); read only."""
+
 _FUSED: Final = PushOutcome(True, ACCEPTED)
 _FUSED_SATURATED: Final = PushOutcome(True, SATURATED)
 
@@ -399,6 +404,8 @@ def _vector(where: str, name: str, value: object, size: int, unit: str) -> NDArr
 
     Non-finite values pass (the caller rejects or interprets them).
     """
+    if type(value) is np.ndarray and value.shape == (size,) and value.dtype is _FLOAT64:
+        return value.copy()  # the common case, at IMU rate: a plain float64 array
     refuse_masked(f"{where}: {name}", value)
     try:
         array = np.asarray(value)
@@ -410,8 +417,13 @@ def _vector(where: str, name: str, value: object, size: int, unit: str) -> NDArr
     return np.array(array, dtype=np.float64)
 
 
+_FLOAT64: Final = np.dtype(np.float64)
+
+
 def _time(where: str, t: object) -> float:
     """``t`` as a float; ValueError when it is not a real number (NaN/inf pass)."""
+    if type(t) is float:
+        return t
     if isinstance(t, (bool, np.bool_)) or not isinstance(t, (Real, np.integer, np.floating)):
         if isinstance(t, np.ndarray) and t.shape == () and t.dtype.kind in "fiu":
             return float(t)
@@ -745,6 +757,7 @@ class Tracker:
             raise ValueError(f"Tracker: expected a finite imu_time_offset (s) and "
                              f"|imu_clock_drift_ppm| <= {MAX_CLOCK_DRIFT_PPM:g}, got {imu_clock}")
         self.imu_clock = imu_clock
+        self._imu_clock_mapped = imu_clock != (0.0, 0.0)
         if clock is not None and not callable(clock):
             raise ValueError(f"Tracker: clock: expected a function returning the time in s, "
                              f"got {type(clock).__name__}")
@@ -911,7 +924,7 @@ class Tracker:
             ValueError: ``t`` not a real number, or ``acc``/``gyro`` not 3 numbers.
         """
         t = _time("push_imu", t)
-        if self.imu_clock != (0.0, 0.0):  # onto the mocap clock (the one clock model)
+        if self._imu_clock_mapped:  # onto the mocap clock (the one clock model)
             t = float(imu_time_to_mocap(t, *self.imu_clock))
         accelerometer = _vector("push_imu", "acc", acc, 3, "m/s^2")
         gyroscope = _vector("push_imu", "gyro", gyro, 3, "rad/s")
@@ -1181,9 +1194,8 @@ class Tracker:
         (:class:`kfusion.streamhealth.TimeGuard`): True to reject it. A confirmed jump restarts
         the streams from the new time (counted in ``health.time_rebases``)."""
         imu, mocap = self._imu.last_t, self._mocap.last_t
-        seen = {index for index, last in ((IMU_STREAM, imu), (MOCAP_STREAM, mocap))
-                if last != -math.inf}
-        verdict = self._guard.check(t, stream, max(imu, mocap), seen)
+        seen = _STREAMS_SEEN[imu != -math.inf, mocap != -math.inf]
+        verdict = self._guard.check(t, stream, imu if imu > mocap else mocap, seen)
         if verdict == REBASE:
             self._estimator = self._new_estimator()
             self._start_streams(keep_counters=True)
@@ -1301,15 +1313,19 @@ class Tracker:
             if book.status != LOST and self._status_at(t) == LOST:
                 book.counts.lost_transitions += 1
                 book.status = LOST
-        large = event[4] or t - previous > self._estimator.imu_dropout_s
-        resets_before = self._estimator.resets()
+        estimator = self._estimator
+        large = event[4] or t - previous > estimator.imu_dropout_s
+        # only after a large interval, a saturated sample or a frame can the state overflow
+        # (the inputs are validated): only then is it checked
+        checked = large or stream == MOCAP_STREAM
+        resets_before = estimator.resets() if checked else 0
         try:
             if large:
                 with np.errstate(all="ignore"):
                     outcome = self._apply(event)
             else:
                 outcome = self._apply(event)
-            failed = (large or stream == MOCAP_STREAM) and not self._estimator.finite()
+            failed = checked and not estimator.finite()
         except _NUMERICAL_ERRORS:
             failed = True
         if failed:
@@ -1318,7 +1334,7 @@ class Tracker:
             book.fix_time = -math.inf
             book.last_frame_fused = False
             outcome = self._apply(event)  # a fresh estimator: holds the sample or initialises
-        elif self._estimator.resets() > resets_before:
+        elif checked and estimator.resets() > resets_before:
             # the estimator forgot an overflowing state itself: the same restart for the books
             book.counts.state_resets += 1
             book.fix_time = -math.inf

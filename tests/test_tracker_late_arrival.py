@@ -232,7 +232,7 @@ def test_an_imu_that_stops_behind_a_frame_leaves_an_honest_status(recording, ref
         push(in_order, recording, stream, index)
     frame_at_stop = int(np.flatnonzero(mocap.t == stop)[0])
     assert mocap.visible[frame_at_stop]
-    for t, stream, index in events:
+    for _, stream, index in events:
         if (stream, index) == (IMU_STREAM, int(imu_rows[-1])):
             continue  # the last IMU sample arrives after the frame with its stamp
         push(late, recording, stream, index)
