@@ -36,8 +36,9 @@ NaN/inf IMU value or time              rejected ``non_finite``; state untouched
 time <= the stream's last time         rejected ``out_of_order``; same time and values:
                                        ``duplicate`` (skipped); same time, other values:
                                        ``conflicting_duplicate``
-one stream behind the other            fused in time order by replaying the buffered samples
-                                       (up to ``max_delay_s``); older: ``too_late``
+one stream behind the other            fused in time order from the checkpoint before it (up to
+                                       ``max_delay_s``, see the policy below); older:
+                                       ``too_late``
 long IMU dropout (large dt), IMU      dt is never clamped: the interval the IMU does not cover
 stalled or never delivering            follows the no-IMU model (the covariance grows over all of
                                        it); counted once in ``imu_dropouts``; fixes still give
@@ -66,14 +67,42 @@ non-finite estimator state             status lost, the estimator restarts at th
 =====================================  ==========================================================
 
 Out-of-step streams: each stream must be in time order, but the two may arrive out of step (the
-mocap typically lags the IMU by a few ms). The tracker keeps the samples of the last
-``max_delay_s`` seconds and state checkpoints; a sample older than the newest fused time is
-inserted in time order and the samples after it are fused again from the checkpoint before it.
-The order is the batch driver's (:mod:`kfusion.kalman.events`): an IMU sample counts at the time
-it describes, its stamp mapped onto the mocap clock (``imu_time_offset``,
-``imu_clock_drift_ppm``) minus the Kalman parameters' ``imu_latency_s``, and at equal times the
-IMU sample goes first. The result is bit-identical to pushing everything in that order, and to
-``kfusion track`` on the same recording (tests/test_batch_streaming.py).
+mocap typically lags the IMU by a few ms; with an IMU latency the IMU lags the mocap). The order
+is the batch driver's (:mod:`kfusion.kalman.events`): an IMU sample counts at the time it
+describes, its stamp mapped onto the mocap clock (``imu_time_offset``, ``imu_clock_drift_ppm``)
+minus the Kalman parameters' ``imu_latency_s``, and at equal times the IMU sample goes first.
+Whatever the arrival order within ``max_delay_s``, the result is bit-identical to pushing
+everything in that order, and to ``kfusion track`` on the same recording
+(tests/test_batch_streaming.py, tests/test_tracker_late_arrival.py).
+
+Late arrival at bounded cost (the policy). Every sample is fused when it arrives, so that
+``push_mocap`` returns the fix's outcome (accepted, gated, ...) and ``estimate(t)`` at a frame's
+time includes that frame: an estimate is never older than the data that has arrived. The tracker
+logs the fused events of the last ``max_delay_s`` and keeps state checkpoints: one just before
+every mocap frame, and one after an IMU sample when the newest is ``checkpoint_interval_s`` old.
+A sample behind the newest fused event undoes only what follows it:
+
+* an IMU sample behind mocap frames (frames first: same stamps with the mocap delivered first,
+  or an IMU latency): only frames can follow it (the IMU stream is in order), so the checkpoint
+  just before the first of them is restored and the sample is fused. The frames then *wait*
+  (pending) and are fused again once, when the IMU passes them, a frame follows, or the state is
+  read (``estimate``, ``health``, ``snapshot``). Further IMU samples behind them are fused
+  in order with no restore. Cost: one restore per frame, and each frame fused twice, however
+  many samples arrive behind it; no IMU sample is fused twice.
+* a frame behind IMU samples (the mocap late): the checkpoint before it is restored, the frame
+  fused in its place (its outcome returned) and the IMU samples after it fused again. Cost: one
+  restore and (lag + up to the checkpoint spacing) x IMU rate predictions.
+* older than ``max_delay_s`` behind the newest sample: rejected ``too_late``.
+
+Anchors, and why not as they are. PX4 EKF2 fuses on a delayed horizon from an IMU buffer and an
+output predictor carries the state to now with the IMU alone; its output at now is a
+complementary correction, not the in-order posterior, so batch and stream would differ. A pure
+hold (a frame ahead of the IMU kept out of the state until the IMU passes it) cannot return the
+fix's outcome at push time and leaves ``estimate(t)`` at the frame's time without that frame,
+so the hold must end at every read: that is the pending frames above, entered only after an
+IMU sample really arrived behind a frame. This is optimistic execution with rollback and lazy
+re-execution (Jefferson's Time Warp): the common cases cost a restore and one extra update per
+frame rather than a replay of the buffer.
 """
 
 from __future__ import annotations
@@ -233,7 +262,9 @@ class Health:
         longest_gap_s: longest time without a fused fix, s (the current gap included).
         lost_transitions: times the status went from tracked or bridged to lost.
         state_resets: times a non-finite estimator state forced a restart.
-        replays: samples that arrived behind the other stream and were fused by replay.
+        replays: samples that arrived behind fused samples of the other stream and were
+            fused after restoring a checkpoint (a frame fused at its arrival and undone by a
+            late IMU sample, then read before the IMU passed it, may be undone again).
         resets: calls to :meth:`Tracker.reset`.
         orientation_gated: mocap orientations rejected by the gate against the gyroscope (the
             fix's position was still used; Kalman only).
@@ -281,9 +312,11 @@ class TrackerOptions:
         fix_timeout_s: s; the status is ``tracked`` only while the last fix is at most this old
             (and the last frame was fused). Default 0.05 s: five frames at 100 Hz.
         max_delay_s: s; how far one stream may lag the other and still be fused in time order
-            (by replay). 0 disables replay: a sample behind the other stream is ``too_late``.
+            (from a checkpoint: the module docstring's late-arrival policy). 0 disables it: a
+            sample behind the other stream is ``too_late``.
         checkpoint_interval_s: s; spacing of state checkpoints between mocap frames (a
-            checkpoint is also taken after every mocap frame). > 0.
+            checkpoint is also taken just before every mocap frame). A frame arriving ``lag``
+            s late costs about (lag + this) x IMU rate predictions again. > 0.
         accelerometer_range: m/s^2; a sample with an axis at 99.9 % of it or beyond is flagged
             ``saturated``. None: the estimator's (Kalman parameters) or the IMU profile's range.
         max_time_jump_s: s; a stamp more than this ahead of the newest time of both streams is
