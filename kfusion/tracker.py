@@ -79,7 +79,8 @@ Late arrival at bounded cost (the policy). Every sample is fused when it arrives
 ``push_mocap`` returns the fix's outcome (accepted, gated, ...) and ``estimate(t)`` at a frame's
 time includes that frame: an estimate is never older than the data that has arrived. The tracker
 logs the fused events of the last ``max_delay_s`` and keeps state checkpoints: one just before
-every mocap frame, and one after an IMU sample when the newest is ``checkpoint_interval_s`` old.
+a mocap frame that is ahead of the IMU, one just after a frame that arrived late, and one after
+an IMU sample when the newest is ``checkpoint_interval_s`` old.
 A sample behind the newest fused event undoes only what follows it:
 
 * an IMU sample behind mocap frames (frames first: same stamps with the mocap delivered first,
@@ -89,9 +90,11 @@ A sample behind the newest fused event undoes only what follows it:
   read (``estimate``, ``health``, ``snapshot``). Further IMU samples behind them are fused
   in order with no restore. Cost: one restore per frame, and each frame fused twice, however
   many samples arrive behind it; no IMU sample is fused twice.
-* a frame behind IMU samples (the mocap late): the checkpoint before it is restored, the frame
-  fused in its place (its outcome returned) and the IMU samples after it fused again. Cost: one
-  restore and (lag + up to the checkpoint spacing) x IMU rate predictions.
+* a frame behind IMU samples (the mocap late): the checkpoint before it is restored (the one
+  taken just after the previous late frame, or an interval checkpoint), the frame fused in its
+  place (its outcome returned), a checkpoint taken after it, and the IMU samples after it fused
+  again. Cost: one restore, one update and (lag + the time since that checkpoint, at most the
+  frame period or ``checkpoint_interval_s``) x IMU rate predictions.
 * older than ``max_delay_s`` behind the newest sample: rejected ``too_late``.
 
 Anchors, and why not as they are. PX4 EKF2 fuses on a delayed horizon from an IMU buffer and an
@@ -315,8 +318,7 @@ class TrackerOptions:
             (from a checkpoint: the module docstring's late-arrival policy). 0 disables it: a
             sample behind the other stream is ``too_late``.
         checkpoint_interval_s: s; spacing of state checkpoints between mocap frames (a
-            checkpoint is also taken just before every mocap frame). A frame arriving ``lag``
-            s late costs about (lag + this) x IMU rate predictions again. > 0.
+            checkpoint is also taken around mocap frames: the module docstring's policy). > 0.
         accelerometer_range: m/s^2; a sample with an axis at 99.9 % of it or beyond is flagged
             ``saturated``. None: the estimator's (Kalman parameters) or the IMU profile's range.
         max_time_jump_s: s; a stamp more than this ahead of the newest time of both streams is
@@ -845,6 +847,7 @@ class Tracker:
         self._checkpoints: deque[_Checkpoint] = deque()
         self._pending: deque[tuple] = deque()
         self._newest: tuple[float, int] | None = None
+        self._imu_newest = -math.inf  # time of the newest IMU event that arrived to be fused
         self._start_streams(keep_counters=False)
 
     # ---- construction helpers ---------------------------------------------------------------
@@ -1162,7 +1165,7 @@ class Tracker:
             "estimator": self._estimator.snapshot(), "book": self._book, "imu": self._imu,
             "mocap": self._mocap, "log": self._log, "checkpoints": self._checkpoints,
             "resets": self._resets, "replays": self._replays, "watch": self._watch,
-            "guard": self._guard, "newest": self._newest,
+            "guard": self._guard, "newest": self._newest, "imu_newest": self._imu_newest,
         })
         newest = math.nan if self._book.key is None else self._book.key[0]
         return TrackerSnapshot(method=self.method, t=newest,
@@ -1189,6 +1192,7 @@ class Tracker:
         self._resets, self._replays = state["resets"], state["replays"]
         self._watch, self._guard = state["watch"], state["guard"]
         self._newest, self._pending = state["newest"], deque()
+        self._imu_newest = state["imu_newest"]
 
     @_locked
     def __repr__(self) -> str:
@@ -1218,6 +1222,7 @@ class Tracker:
         self._checkpoints = deque()
         self._pending = deque()
         self._newest = None
+        self._imu_newest = -math.inf
         if self.options.max_delay_s > 0:
             self._checkpoints.append(_Checkpoint((-math.inf, -1), self._estimator.snapshot(),
                                                  self._book.copy()))
@@ -1255,6 +1260,8 @@ class Tracker:
         in the module docstring).
         """
         key = (event[0], event[1])
+        if key[1] == IMU_STREAM and key[0] > self._imu_newest:
+            self._imu_newest = key[0]
         newest = self._newest
         if newest is None or key > newest:
             self._newest = key
@@ -1295,7 +1302,7 @@ class Tracker:
         self._replays += 1
         while later and (later[0][0], later[0][1]) < key:
             self._fuse_next(later.pop(0))
-        outcome = self._fuse_next(event)
+        outcome = self._fuse_next(event, late_frame=event[1] == MOCAP_STREAM)
         if event[1] == IMU_STREAM:
             self._pending.extendleft(reversed(later))  # frames, before any pending ones
         else:
@@ -1309,18 +1316,24 @@ class Tracker:
         while pending and (before is None or (pending[0][0], pending[0][1]) < before):
             self._fuse_next(pending.popleft())
 
-    def _fuse_next(self, event: tuple) -> str:
-        """Fuse an event that comes after every fused one, log it and checkpoint around it."""
+    def _fuse_next(self, event: tuple, *, late_frame: bool = False) -> str:
+        """Fuse an event that comes after every fused one, log it and checkpoint around it.
+
+        A frame gets a checkpoint where the next insertion will land: just before it while
+        the IMU has not reached its time (an IMU sample may still arrive behind it), just
+        after it when it arrived late itself (``late_frame``: the next frame will too, and
+        lands after it)."""
         if self.options.max_delay_s <= 0:
             return self._process(event)
         checkpoints = self._checkpoints
         book = self._book
         if event[1] == MOCAP_STREAM and book.key is not None \
-                and checkpoints[-1].key != book.key:
-            # the state just before a frame: an IMU sample arriving behind the frame restores
-            # it and fuses only itself (and later the frame again)
+                and self._imu_newest < event[0] and checkpoints[-1].key != book.key:
             checkpoints.append(_Checkpoint(book.key, self._estimator.snapshot(), book.copy()))
         outcome = self._process(event)
+        if late_frame:
+            checkpoints.append(_Checkpoint(self._book.key, self._estimator.snapshot(),
+                                           self._book.copy()))
         self._log_and_checkpoint(event)
         return outcome
 
@@ -1432,8 +1445,8 @@ class Tracker:
     def _log_and_checkpoint(self, event: tuple) -> None:
         """Keep the fused event and checkpoints for insertions within ``max_delay_s``; prune.
 
-        Checkpoints: the state before every mocap frame (:meth:`_fuse_next`), and after an IMU
-        sample when the newest checkpoint is ``checkpoint_interval_s`` old. The newest
+        Checkpoints: around mocap frames (:meth:`_fuse_next`), and after an IMU sample when
+        the newest checkpoint is ``checkpoint_interval_s`` old. The newest
         checkpoint at or before ``t - max_delay_s`` and everything after it are kept; the log
         holds the events after the oldest one.
         """
