@@ -1300,13 +1300,15 @@ class Tracker:
             later.append(log.pop())
         later.reverse()
         self._replays += 1
-        while later and (later[0][0], later[0][1]) < key:
-            self._fuse_next(later.pop(0))
+        split = 0
+        while split < len(later) and (later[split][0], later[split][1]) < key:
+            self._fuse_next(later[split])
+            split += 1
         outcome = self._fuse_next(event, late_frame=event[1] == MOCAP_STREAM)
         if event[1] == IMU_STREAM:
-            self._pending.extendleft(reversed(later))  # frames, before any pending ones
+            self._pending.extendleft(reversed(later[split:]))  # frames, before pending ones
         else:
-            for logged in later:
+            for logged in later[split:]:
                 self._fuse_next(logged)
         return outcome
 
