@@ -509,9 +509,12 @@ class _Estimator(Protocol):
 
     def orientation_gated(self) -> int: ...
 
-    def snapshot(self) -> object: ...
+    def snapshot(self) -> object:
+        """The whole state, taken at mocap rate for the Tracker's checkpoints: keep it cheap."""
 
-    def restore(self, snapshot: object) -> None: ...
+    def restore(self, snapshot: object) -> None:
+        """Continue from ``snapshot``, sharing nothing mutable with it: the Tracker restores
+        one checkpoint again and again and does not copy it first."""
 
 
 class _BaselineEstimator:
