@@ -78,9 +78,9 @@ everything in that order, and to ``kfusion track`` on the same recording
 Late arrival at bounded cost (the policy). Every sample is fused when it arrives, so that
 ``push_mocap`` returns the fix's outcome (accepted, gated, ...) and ``estimate(t)`` at a frame's
 time includes that frame: an estimate is never older than the data that has arrived. The tracker
-logs the fused events of the last ``max_delay_s`` and keeps state checkpoints: one just before
-a mocap frame that is ahead of the IMU, one just after a frame that arrived late, and one after
-an IMU sample when the newest is ``checkpoint_interval_s`` old.
+logs the fused events of the last ``max_delay_s`` and keeps state checkpoints where the next
+insertion will land (:meth:`Tracker._fuse_next`), and one after an IMU sample when the newest is
+``checkpoint_interval_s`` old.
 A sample behind the newest fused event undoes only what follows it:
 
 * an IMU sample behind mocap frames (frames first: same stamps with the mocap delivered first,
@@ -90,11 +90,13 @@ A sample behind the newest fused event undoes only what follows it:
   read (``estimate``, ``health``, ``snapshot``). Further IMU samples behind them are fused
   in order with no restore. Cost: one restore per frame, and each frame fused twice, however
   many samples arrive behind it; no IMU sample is fused twice.
-* a frame behind IMU samples (the mocap late): the checkpoint before it is restored (the one
-  taken just after the previous late frame, or an interval checkpoint), the frame fused in its
-  place (its outcome returned), a checkpoint taken after it, and the IMU samples after it fused
-  again. Cost: one restore, one update and (lag + the time since that checkpoint, at most the
-  frame period or ``checkpoint_interval_s``) x IMU rate predictions.
+* a frame behind IMU samples (the mocap late): the checkpoint before it is restored (while
+  frames come late, one is taken just before the first IMU sample past the time the next frame
+  is expected at; else the one just after the previous late frame, or an interval
+  checkpoint), the frame fused in its place (its outcome returned), a checkpoint taken after
+  it, and the IMU samples after it fused again. Cost: one restore, one update and lag x IMU
+  rate predictions for frames at a steady rate (at most (lag + the frame period or
+  ``checkpoint_interval_s``) x IMU rate).
 * older than ``max_delay_s`` behind the newest sample: rejected ``too_late``.
 
 Anchors, and why not as they are. PX4 EKF2 fuses on a delayed horizon from an IMU buffer and an
@@ -851,6 +853,8 @@ class Tracker:
         self._pending: deque[tuple] = deque()
         self._newest: tuple[float, int] | None = None
         self._imu_newest = -math.inf  # time of the newest IMU event that arrived to be fused
+        self._mocap_newest = -math.inf  # the same for frames, and the last frame period, s
+        self._frame_period = math.inf
         self._start_streams(keep_counters=False)
 
     # ---- construction helpers ---------------------------------------------------------------
@@ -1168,7 +1172,8 @@ class Tracker:
             "estimator": self._estimator.snapshot(), "book": self._book, "imu": self._imu,
             "mocap": self._mocap, "log": self._log, "checkpoints": self._checkpoints,
             "resets": self._resets, "replays": self._replays, "watch": self._watch,
-            "guard": self._guard, "newest": self._newest, "imu_newest": self._imu_newest,
+            "guard": self._guard, "newest": self._newest,
+            "horizons": (self._imu_newest, self._mocap_newest, self._frame_period),
         })
         newest = math.nan if self._book.key is None else self._book.key[0]
         return TrackerSnapshot(method=self.method, t=newest,
@@ -1195,7 +1200,7 @@ class Tracker:
         self._resets, self._replays = state["resets"], state["replays"]
         self._watch, self._guard = state["watch"], state["guard"]
         self._newest, self._pending = state["newest"], deque()
-        self._imu_newest = state["imu_newest"]
+        self._imu_newest, self._mocap_newest, self._frame_period = state["horizons"]
 
     @_locked
     def __repr__(self) -> str:
@@ -1225,7 +1230,8 @@ class Tracker:
         self._checkpoints = deque()
         self._pending = deque()
         self._newest = None
-        self._imu_newest = -math.inf
+        self._imu_newest = self._mocap_newest = -math.inf
+        self._frame_period = math.inf
         if self.options.max_delay_s > 0:
             self._checkpoints.append(_Checkpoint((-math.inf, -1), self._estimator.snapshot(),
                                                  self._book.copy()))
@@ -1263,8 +1269,12 @@ class Tracker:
         in the module docstring).
         """
         key = (event[0], event[1])
-        if key[1] == IMU_STREAM and key[0] > self._imu_newest:
-            self._imu_newest = key[0]
+        if key[1] == IMU_STREAM:
+            if key[0] > self._imu_newest:
+                self._imu_newest = key[0]
+        elif key[0] > self._mocap_newest:
+            self._frame_period = key[0] - self._mocap_newest  # inf after the first frame
+            self._mocap_newest = key[0]
         newest = self._newest
         if newest is None or key > newest:
             self._newest = key
@@ -1324,17 +1334,26 @@ class Tracker:
     def _fuse_next(self, event: tuple, *, late_frame: bool = False) -> str:
         """Fuse an event that comes after every fused one, log it and checkpoint around it.
 
-        A frame gets a checkpoint where the next insertion will land: just before it while
-        the IMU has not reached its time (an IMU sample may still arrive behind it), just
-        after it when it arrived late itself (``late_frame``: the next frame will too, and
-        lands after it)."""
+        Checkpoints go where the next insertion will land: just before a frame while the IMU
+        has not reached its time (an IMU sample may still arrive behind it); just after a frame
+        that arrived late itself (``late_frame``: the next frame will too, and lands after it);
+        and, while the frames are late, just before the first IMU sample past the time the
+        next frame is expected at (the newest frame's time plus the last frame period), so a
+        late frame re-predicts only the samples of its own lag."""
         if self.options.max_delay_s <= 0:
             return self._process(event)
         checkpoints = self._checkpoints
         book = self._book
-        if event[1] == MOCAP_STREAM and book.key is not None \
-                and self._imu_newest < event[0] and checkpoints[-1].key != book.key:
-            checkpoints.append(_Checkpoint(book.key, self._estimator.snapshot(), book.copy()))
+        if book.key is not None and checkpoints[-1].key != book.key:
+            t = event[0]
+            if event[1] == MOCAP_STREAM:
+                ahead = self._imu_newest < t
+            else:
+                expected = self._mocap_newest + self._frame_period
+                ahead = book.key[0] <= expected < t
+            if ahead:
+                checkpoints.append(_Checkpoint(book.key, self._estimator.snapshot(),
+                                               book.copy()))
         outcome = self._process(event)
         if late_frame:
             checkpoints.append(_Checkpoint(self._book.key, self._estimator.snapshot(),
