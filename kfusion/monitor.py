@@ -54,7 +54,6 @@ A heuristic, named as such in health: it says where to look, ``kfusion check`` d
 
 from __future__ import annotations
 
-import copy
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -367,6 +366,16 @@ class HorizonScales:
         self.gaps += 1
         self._table = None
 
+    def copy(self) -> HorizonScales:
+        """An independent copy (the rows are floats). The scale table is computed first and
+        shared (it is read-only), so a copy restored again and again does not recompute it."""
+        other = HorizonScales.__new__(HorizonScales)
+        other.params = self.params
+        other._rows = [deque(rows, maxlen=rows.maxlen) for rows in self._rows]
+        other.gaps = self.gaps
+        other._table = self.scale_table()
+        return other
+
     def variance_scales(self) -> tuple[float, ...]:
         """Matched variance scale per bin (NaN where the bin has no evidence), before limits."""
         return tuple(quantile_matching_scale(list(rows), self.params.matching_quantile)
@@ -562,13 +571,13 @@ class ConsistencyMonitor:
         state = {key: value for key, value in vars(self).items()
                  if key not in ("_shadow", "params", "_gravity")}
         shadow = self._shadow.snapshot() if self._start is not None else None
-        return copy.deepcopy(state), shadow
+        return _copy_state(state), shadow
 
     def restore(self, snapshot: object) -> None:
         """Continue from a :meth:`snapshot` of a monitor with the same configuration."""
         state: dict[str, object] = snapshot[0]  # type: ignore[index]
         shadow: KalmanSnapshot | None = snapshot[1]  # type: ignore[index]
-        vars(self).update(copy.deepcopy(state))
+        vars(self).update(_copy_state(state))
         if shadow is not None:
             self._shadow.restore(shadow)
 
@@ -584,3 +593,20 @@ class ConsistencyMonitor:
                              bridging_allowed=bridging_allowed(std_scale, self._scales.gaps,
                                                                self.params),
                              suspected_cause=cause)
+
+
+def _copy_state(state: dict[str, object]) -> dict[str, object]:
+    """A copy of the monitor's state dict that shares nothing mutable with it: deques, lists
+    and :class:`HorizonScales` are copied; floats, tuples and the arrays the monitor stores
+    (each built new and never changed in place) are shared. It stands for ``copy.deepcopy``,
+    which took about 0.7 ms per snapshot (the Tracker takes one at mocap rate)."""
+    copied: dict[str, object] = {}
+    for key, value in state.items():
+        if isinstance(value, deque):
+            value = deque(value, maxlen=value.maxlen)
+        elif isinstance(value, list):
+            value = list(value)
+        elif isinstance(value, HorizonScales):
+            value = value.copy()
+        copied[key] = value
+    return copied

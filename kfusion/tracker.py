@@ -36,8 +36,9 @@ NaN/inf IMU value or time              rejected ``non_finite``; state untouched
 time <= the stream's last time         rejected ``out_of_order``; same time and values:
                                        ``duplicate`` (skipped); same time, other values:
                                        ``conflicting_duplicate``
-one stream behind the other            fused in time order by replaying the buffered samples
-                                       (up to ``max_delay_s``); older: ``too_late``
+one stream behind the other            fused in time order from the checkpoint before it (up to
+                                       ``max_delay_s``, see the policy below); older:
+                                       ``too_late``
 long IMU dropout (large dt), IMU      dt is never clamped: the interval the IMU does not cover
 stalled or never delivering            follows the no-IMU model (the covariance grows over all of
                                        it); counted once in ``imu_dropouts``; fixes still give
@@ -66,14 +67,47 @@ non-finite estimator state             status lost, the estimator restarts at th
 =====================================  ==========================================================
 
 Out-of-step streams: each stream must be in time order, but the two may arrive out of step (the
-mocap typically lags the IMU by a few ms). The tracker keeps the samples of the last
-``max_delay_s`` seconds and state checkpoints; a sample older than the newest fused time is
-inserted in time order and the samples after it are fused again from the checkpoint before it.
-The order is the batch driver's (:mod:`kfusion.kalman.events`): an IMU sample counts at the time
-it describes, its stamp mapped onto the mocap clock (``imu_time_offset``,
-``imu_clock_drift_ppm``) minus the Kalman parameters' ``imu_latency_s``, and at equal times the
-IMU sample goes first. The result is bit-identical to pushing everything in that order, and to
-``kfusion track`` on the same recording (tests/test_batch_streaming.py).
+mocap typically lags the IMU by a few ms; with an IMU latency the IMU lags the mocap). The order
+is the batch driver's (:mod:`kfusion.kalman.events`): an IMU sample counts at the time it
+describes, its stamp mapped onto the mocap clock (``imu_time_offset``, ``imu_clock_drift_ppm``)
+minus the Kalman parameters' ``imu_latency_s``, and at equal times the IMU sample goes first.
+Whatever the arrival order within ``max_delay_s``, the result is bit-identical to pushing
+everything in that order, and to ``kfusion track`` on the same recording
+(tests/test_batch_streaming.py, tests/test_tracker_late_arrival.py).
+
+Late arrival at bounded cost (the policy). Every sample is fused when it arrives, so that
+``push_mocap`` returns the fix's outcome (accepted, gated, ...) and ``estimate(t)`` at a frame's
+time includes that frame: an estimate is never older than the data that has arrived. The tracker
+logs the fused events of the last ``max_delay_s`` and keeps state checkpoints where the next
+insertion will land (:meth:`Tracker._fuse_next`), and one after an IMU sample when the newest is
+``checkpoint_interval_s`` old.
+A sample behind the newest fused event undoes only what follows it:
+
+* an IMU sample behind mocap frames (frames first: same stamps with the mocap delivered first,
+  or an IMU latency): only frames can follow it (the IMU stream is in order), so the checkpoint
+  just before the first of them is restored and the sample is fused. The frames then *wait*
+  (pending) and are fused again once, when the IMU passes them, a frame follows, or the state is
+  read (``estimate``, ``health``, ``snapshot``). Further IMU samples behind them are fused
+  in order with no restore. Cost: one restore per frame, and each frame fused twice, however
+  many samples arrive behind it; no IMU sample is fused twice.
+* a frame behind IMU samples (the mocap late): the checkpoint before it is restored (while
+  frames come late, one is taken just before the first IMU sample past the time the next frame
+  is expected at; else the one just after the previous late frame, or an interval
+  checkpoint), the frame fused in its place (its outcome returned), a checkpoint taken after
+  it, and the IMU samples after it fused again. Cost: one restore, one update and lag x IMU
+  rate predictions for frames at a steady rate (at most (lag + the frame period or
+  ``checkpoint_interval_s``) x IMU rate).
+* older than ``max_delay_s`` behind the newest sample: rejected ``too_late``.
+
+Anchors, and why not as they are. PX4 EKF2 fuses on a delayed horizon from an IMU buffer and an
+output predictor carries the state to now with the IMU alone; its output at now is a
+complementary correction, not the in-order posterior, so batch and stream would differ. A pure
+hold (a frame ahead of the IMU kept out of the state until the IMU passes it) cannot return the
+fix's outcome at push time and leaves ``estimate(t)`` at the frame's time without that frame,
+so the hold must end at every read: that is the pending frames above, entered only after an
+IMU sample really arrived behind a frame. This is optimistic execution with rollback and lazy
+re-execution (Jefferson's Time Warp): the common cases cost a restore and one extra update per
+frame rather than a replay of the buffer.
 """
 
 from __future__ import annotations
@@ -233,7 +267,9 @@ class Health:
         longest_gap_s: longest time without a fused fix, s (the current gap included).
         lost_transitions: times the status went from tracked or bridged to lost.
         state_resets: times a non-finite estimator state forced a restart.
-        replays: samples that arrived behind the other stream and were fused by replay.
+        replays: samples that arrived behind fused samples of the other stream and were
+            fused after restoring a checkpoint (a frame fused at its arrival and undone by a
+            late IMU sample, then read before the IMU passed it, may be undone again).
         resets: calls to :meth:`Tracker.reset`.
         orientation_gated: mocap orientations rejected by the gate against the gyroscope (the
             fix's position was still used; Kalman only).
@@ -281,9 +317,10 @@ class TrackerOptions:
         fix_timeout_s: s; the status is ``tracked`` only while the last fix is at most this old
             (and the last frame was fused). Default 0.05 s: five frames at 100 Hz.
         max_delay_s: s; how far one stream may lag the other and still be fused in time order
-            (by replay). 0 disables replay: a sample behind the other stream is ``too_late``.
+            (from a checkpoint: the module docstring's late-arrival policy). 0 disables it: a
+            sample behind the other stream is ``too_late``.
         checkpoint_interval_s: s; spacing of state checkpoints between mocap frames (a
-            checkpoint is also taken after every mocap frame). > 0.
+            checkpoint is also taken around mocap frames: the module docstring's policy). > 0.
         accelerometer_range: m/s^2; a sample with an axis at 99.9 % of it or beyond is flagged
             ``saturated``. None: the estimator's (Kalman parameters) or the IMU profile's range.
         max_time_jump_s: s; a stamp more than this ahead of the newest time of both streams is
@@ -338,6 +375,11 @@ class TrackerSnapshot:
 
 _NUMERICAL_ERRORS: Final = (ArithmeticError, ValueError, np.linalg.LinAlgError)
 """What the estimator's maths may raise on overflowing numbers (math.sin(inf), singular S)."""
+
+_STREAMS_SEEN: Final[dict[tuple[bool, bool], set[int]]] = {
+    (False, False): set(), (True, False): {IMU_STREAM}, (False, True): {MOCAP_STREAM},
+    (True, True): {IMU_STREAM, MOCAP_STREAM}}
+"""The streams that delivered a sample, by (IMU seen, mocap seen); read only."""
 
 _FUSED: Final = PushOutcome(True, ACCEPTED)
 _FUSED_SATURATED: Final = PushOutcome(True, SATURATED)
@@ -399,6 +441,8 @@ def _vector(where: str, name: str, value: object, size: int, unit: str) -> NDArr
 
     Non-finite values pass (the caller rejects or interprets them).
     """
+    if type(value) is np.ndarray and value.shape == (size,) and value.dtype is _FLOAT64:
+        return value.copy()  # the common case, at IMU rate: a plain float64 array
     refuse_masked(f"{where}: {name}", value)
     try:
         array = np.asarray(value)
@@ -410,8 +454,13 @@ def _vector(where: str, name: str, value: object, size: int, unit: str) -> NDArr
     return np.array(array, dtype=np.float64)
 
 
+_FLOAT64: Final = np.dtype(np.float64)
+
+
 def _time(where: str, t: object) -> float:
     """``t`` as a float; ValueError when it is not a real number (NaN/inf pass)."""
+    if type(t) is float:
+        return t
     if isinstance(t, (bool, np.bool_)) or not isinstance(t, (Real, np.integer, np.floating)):
         if isinstance(t, np.ndarray) and t.shape == () and t.dtype.kind in "fiu":
             return float(t)
@@ -462,9 +511,12 @@ class _Estimator(Protocol):
 
     def orientation_gated(self) -> int: ...
 
-    def snapshot(self) -> object: ...
+    def snapshot(self) -> object:
+        """The whole state, taken at mocap rate for the Tracker's checkpoints: keep it cheap."""
 
-    def restore(self, snapshot: object) -> None: ...
+    def restore(self, snapshot: object) -> None:
+        """Continue from ``snapshot``, sharing nothing mutable with it: the Tracker restores
+        one checkpoint again and again and does not copy it first."""
 
 
 class _BaselineEstimator:
@@ -743,6 +795,7 @@ class Tracker:
         clock: Callable[[], float] | None = None,
     ) -> None:
         self.imu_clock = check_clock(imu_time_offset, imu_clock_drift_ppm, "Tracker")
+        self._imu_clock_mapped = self.imu_clock != (0.0, 0.0)
         if clock is not None and not callable(clock):
             raise ValueError(f"Tracker: clock: expected a function returning the time in s, "
                              f"got {type(clock).__name__}")
@@ -795,6 +848,11 @@ class Tracker:
         self._replays = 0
         self._log: deque[tuple] = deque()
         self._checkpoints: deque[_Checkpoint] = deque()
+        self._pending: deque[tuple] = deque()
+        self._newest: tuple[float, int] | None = None
+        self._imu_newest = -math.inf  # time of the newest IMU event that arrived to be fused
+        self._mocap_newest = -math.inf  # the same for frames, and the last frame period, s
+        self._frame_period = math.inf
         self._start_streams(keep_counters=False)
 
     # ---- construction helpers ---------------------------------------------------------------
@@ -909,7 +967,7 @@ class Tracker:
             ValueError: ``t`` not a real number, or ``acc``/``gyro`` not 3 numbers.
         """
         t = _time("push_imu", t)
-        if self.imu_clock != (0.0, 0.0):  # onto the mocap clock (the one clock model)
+        if self._imu_clock_mapped:  # onto the mocap clock (the one clock model)
             t = float(imu_time_to_mocap(t, *self.imu_clock))
         accelerometer = _vector("push_imu", "acc", acc, 3, "m/s^2")
         gyroscope = _vector("push_imu", "gyro", gyro, 3, "rad/s")
@@ -1000,12 +1058,15 @@ class Tracker:
         no "now", and an estimate at the newest sample's time would look current after the
         streams stopped: ValueError. A later ``t`` than the newest sample extrapolates with the
         last IMU sample held (for at most ``imu_dropout_s``; later a gap is ``lost``) and ages
-        ``time_since_fix``; the state is not changed. NaN position before any fix.
+        ``time_since_fix``; the fused result is not changed (frames waiting after a late IMU
+        sample are fused first: :meth:`_flush`). NaN position before any fix.
 
         Raises:
             ValueError: ``t`` missing without a clock, not a real number, or earlier than the
                 newest fused sample.
         """
+        if self._pending:
+            self._flush()
         book = self._book
         if t is None:
             if self._clock is None:
@@ -1053,7 +1114,7 @@ class Tracker:
     def newest_time(self) -> float:
         """Time (s) of the newest fused sample; NaN before any. Not "now": after the streams
         stop it stays put, so pass the caller's current time to :meth:`estimate`."""
-        return math.nan if self._book.key is None else self._book.key[0]
+        return math.nan if self._newest is None else self._newest[0]
 
     @property
     @_locked
@@ -1061,6 +1122,7 @@ class Tracker:
         """What the consistency monitor found (:mod:`kfusion.monitor`: windowed NIS, shadow
         gaps, the bound's scale, whether it bridges, the suspected cause); None for the
         baseline."""
+        self._flush()
         monitor = getattr(self._estimator, "monitor", None)
         return None if monitor is None else monitor.report()
 
@@ -1068,6 +1130,7 @@ class Tracker:
     @_locked
     def health(self) -> Health:
         """The health counters now (a frozen copy)."""
+        self._flush()
         imu, mocap, book = self._imu, self._mocap, self._book
         counts = book.counts
         gap = counts.longest_gap_s
@@ -1104,11 +1167,13 @@ class Tracker:
 
         :meth:`restore` into a tracker built with the same arguments continues bit-exactly.
         """
+        self._flush()
         state = copy.deepcopy({
             "estimator": self._estimator.snapshot(), "book": self._book, "imu": self._imu,
             "mocap": self._mocap, "log": self._log, "checkpoints": self._checkpoints,
             "resets": self._resets, "replays": self._replays, "watch": self._watch,
-            "guard": self._guard,
+            "guard": self._guard, "newest": self._newest,
+            "horizons": (self._imu_newest, self._mocap_newest, self._frame_period),
         })
         newest = math.nan if self._book.key is None else self._book.key[0]
         return TrackerSnapshot(method=self.method, t=newest,
@@ -1134,9 +1199,12 @@ class Tracker:
         self._log, self._checkpoints = state["log"], state["checkpoints"]
         self._resets, self._replays = state["resets"], state["replays"]
         self._watch, self._guard = state["watch"], state["guard"]
+        self._newest, self._pending = state["newest"], deque()
+        self._imu_newest, self._mocap_newest, self._frame_period = state["horizons"]
 
     @_locked
     def __repr__(self) -> str:
+        self._flush()
         newest = None if self._book.key is None else self._book.key[0]
         return f"Tracker(method={self.method!r}, t={newest!r}, status={self._book.status!r})"
 
@@ -1160,6 +1228,10 @@ class Tracker:
             self._book = _Book()
         self._log = deque()
         self._checkpoints = deque()
+        self._pending = deque()
+        self._newest = None
+        self._imu_newest = self._mocap_newest = -math.inf
+        self._frame_period = math.inf
         if self.options.max_delay_s > 0:
             self._checkpoints.append(_Checkpoint((-math.inf, -1), self._estimator.snapshot(),
                                                  self._book.copy()))
@@ -1169,9 +1241,8 @@ class Tracker:
         (:class:`kfusion.streamhealth.TimeGuard`): True to reject it. A confirmed jump restarts
         the streams from the new time (counted in ``health.time_rebases``)."""
         imu, mocap = self._imu.last_t, self._mocap.last_t
-        seen = {index for index, last in ((IMU_STREAM, imu), (MOCAP_STREAM, mocap))
-                if last != -math.inf}
-        verdict = self._guard.check(t, stream, max(imu, mocap), seen)
+        seen = _STREAMS_SEEN[imu != -math.inf, mocap != -math.inf]
+        verdict = self._guard.check(t, stream, imu if imu > mocap else mocap, seen)
         if verdict == REBASE:
             self._estimator = self._new_estimator()
             self._start_streams(keep_counters=True)
@@ -1193,39 +1264,101 @@ class Tracker:
     def _fuse(self, event: tuple) -> str | None:
         """Fuse a validated event in time order; its outcome, or None if too late to insert.
 
-        An event behind the newest fused one is inserted by restoring the newest checkpoint
-        before it and fusing the logged events after that checkpoint again, in time order.
+        After the newest fused event (the common case): fused now, after the pending frames
+        that come before it. Behind it: inserted by :meth:`_insert` (the late-arrival policy
+        in the module docstring).
         """
         key = (event[0], event[1])
-        book = self._book
-        if book.key is None or key > book.key:
-            result = self._process(event)
-            self._log_and_checkpoint(event)
-            return result
-        if event[0] < book.key[0] - self.options.max_delay_s:
+        if key[1] == IMU_STREAM:
+            if key[0] > self._imu_newest:
+                self._imu_newest = key[0]
+        elif key[0] > self._mocap_newest:
+            self._frame_period = key[0] - self._mocap_newest  # inf after the first frame
+            self._mocap_newest = key[0]
+        newest = self._newest
+        if newest is None or key > newest:
+            self._newest = key
+            if self._pending:
+                self._flush()
+            return self._fuse_next(event)
+        if event[0] < newest[0] - self.options.max_delay_s:
             return None
+        fused = self._book.key
+        if fused is None or key > fused:  # behind pending frames only: no state to undo
+            self._flush(key)
+            return self._fuse_next(event)
+        return self._insert(event, key)
+
+    def _insert(self, event: tuple, key: tuple[float, int]) -> str | None:
+        """Fuse ``event`` (key ``key``) behind fused events: restore the newest checkpoint
+        before it and fuse the logged events after that checkpoint again, with ``event`` in
+        its place. The logged events after a late IMU sample are all mocap frames (the IMU
+        stream is in order): they wait as pending frames until the IMU passes them, a frame
+        follows or the state is read (:meth:`_flush`). After a late frame, everything is fused
+        again at once (its IMU samples come after it)."""
         checkpoints = self._checkpoints
-        index = next((i for i in range(len(checkpoints) - 1, -1, -1)
-                      if checkpoints[i].key < key), None)
-        if index is None:
+        index = len(checkpoints) - 1
+        while index >= 0 and not checkpoints[index].key < key:
+            index -= 1
+        if index < 0:
             return None
         checkpoint = checkpoints[index]
         while len(checkpoints) > index + 1:
             checkpoints.pop()
-        self._estimator.restore(copy.deepcopy(checkpoint.estimator))
+        self._estimator.restore(checkpoint.estimator)  # restore copies: the checkpoint stays
         self._book = checkpoint.book.copy()
-        later = []
-        while self._log and (self._log[-1][0], self._log[-1][1]) > checkpoint.key:
-            later.append(self._log.pop())
-        later.append(event)
-        later.sort(key=lambda logged: (logged[0], logged[1]))
+        log = self._log
+        later: list[tuple] = []
+        while log and (log[-1][0], log[-1][1]) > checkpoint.key:
+            later.append(log.pop())
+        later.reverse()
         self._replays += 1
-        outcome: str | None = None
-        for logged in later:
-            result = self._process(logged)
-            if logged is event:
-                outcome = result
-            self._log_and_checkpoint(logged)
+        split = 0
+        while split < len(later) and (later[split][0], later[split][1]) < key:
+            self._fuse_next(later[split])
+            split += 1
+        outcome = self._fuse_next(event, late_frame=event[1] == MOCAP_STREAM)
+        if event[1] == IMU_STREAM:
+            self._pending.extendleft(reversed(later[split:]))  # frames, before pending ones
+        else:
+            for logged in later[split:]:
+                self._fuse_next(logged)
+        return outcome
+
+    def _flush(self, before: tuple[float, int] | None = None) -> None:
+        """Fuse the pending frames (those with a key before ``before``; None: all)."""
+        pending = self._pending
+        while pending and (before is None or (pending[0][0], pending[0][1]) < before):
+            self._fuse_next(pending.popleft())
+
+    def _fuse_next(self, event: tuple, *, late_frame: bool = False) -> str:
+        """Fuse an event that comes after every fused one, log it and checkpoint around it.
+
+        Checkpoints go where the next insertion will land: just before a frame while the IMU
+        has not reached its time (an IMU sample may still arrive behind it); just after a frame
+        that arrived late itself (``late_frame``: the next frame will too, and lands after it);
+        and, while the frames are late, just before the first IMU sample past the time the
+        next frame is expected at (the newest frame's time plus the last frame period), so a
+        late frame re-predicts only the samples of its own lag."""
+        if self.options.max_delay_s <= 0:
+            return self._process(event)
+        checkpoints = self._checkpoints
+        book = self._book
+        if book.key is not None and checkpoints[-1].key != book.key:
+            t = event[0]
+            if event[1] == MOCAP_STREAM:
+                ahead = self._imu_newest < t
+            else:
+                expected = self._mocap_newest + self._frame_period
+                ahead = book.key[0] <= expected < t
+            if ahead:
+                checkpoints.append(_Checkpoint(book.key, self._estimator.snapshot(),
+                                               book.copy()))
+        outcome = self._process(event)
+        if late_frame:
+            checkpoints.append(_Checkpoint(self._book.key, self._estimator.snapshot(),
+                                           self._book.copy()))
+        self._log_and_checkpoint(event)
         return outcome
 
     def _process(self, event: tuple) -> str:
@@ -1250,15 +1383,19 @@ class Tracker:
             if book.status != LOST and self._status_at(t) == LOST:
                 book.counts.lost_transitions += 1
                 book.status = LOST
-        large = event[4] or t - previous > self._estimator.imu_dropout_s
-        resets_before = self._estimator.resets()
+        estimator = self._estimator
+        large = event[4] or t - previous > estimator.imu_dropout_s
+        # only after a large interval, a saturated sample or a frame can the state overflow
+        # (the inputs are validated): only then is it checked
+        checked = large or stream == MOCAP_STREAM
+        resets_before = estimator.resets() if checked else 0
         try:
             if large:
                 with np.errstate(all="ignore"):
                     outcome = self._apply(event)
             else:
                 outcome = self._apply(event)
-            failed = (large or stream == MOCAP_STREAM) and not self._estimator.finite()
+            failed = checked and not estimator.finite()
         except _NUMERICAL_ERRORS:
             failed = True
         if failed:
@@ -1267,7 +1404,7 @@ class Tracker:
             book.fix_time = -math.inf
             book.last_frame_fused = False
             outcome = self._apply(event)  # a fresh estimator: holds the sample or initialises
-        elif self._estimator.resets() > resets_before:
+        elif checked and estimator.resets() > resets_before:
             # the estimator forgot an overflowing state itself: the same restart for the books
             book.counts.state_resets += 1
             book.fix_time = -math.inf
@@ -1330,28 +1467,28 @@ class Tracker:
         book.counts.time_lost_s += lost
 
     def _log_and_checkpoint(self, event: tuple) -> None:
-        """Keep the event and a checkpoint for replays within ``max_delay_s``; prune older.
+        """Keep the fused event and checkpoints for insertions within ``max_delay_s``; prune.
 
-        A checkpoint follows every mocap frame, and IMU samples when the last checkpoint is
-        ``checkpoint_interval_s`` old. The newest checkpoint at or before ``t - max_delay_s``
-        and everything after it are kept; the log holds the events after the oldest one.
+        Checkpoints: around mocap frames (:meth:`_fuse_next`), and after an IMU sample when
+        the newest checkpoint is ``checkpoint_interval_s`` old. The newest
+        checkpoint at or before ``t - max_delay_s`` and everything after it are kept; the log
+        holds the events after the oldest one.
         """
-        delay = self.options.max_delay_s
-        if delay <= 0:
-            return
         t = event[0]
         log = self._log
         log.append(event)
         checkpoints = self._checkpoints
-        interval = self.options.checkpoint_interval_s
-        if event[1] == MOCAP_STREAM or t - checkpoints[-1].key[0] >= interval:
-            checkpoints.append(_Checkpoint((t, event[1]), self._estimator.snapshot(),
+        if event[1] == IMU_STREAM and t - checkpoints[-1].key[0] >= \
+                self.options.checkpoint_interval_s:
+            checkpoints.append(_Checkpoint((t, IMU_STREAM), self._estimator.snapshot(),
                                            self._book.copy()))
-            while len(checkpoints) > 1 and checkpoints[1].key[0] <= t - delay:
+        horizon = t - self.options.max_delay_s
+        if len(checkpoints) > 1 and checkpoints[1].key[0] <= horizon:
+            while len(checkpoints) > 1 and checkpoints[1].key[0] <= horizon:
                 checkpoints.popleft()
-        oldest = checkpoints[0].key
-        while log and (log[0][0], log[0][1]) <= oldest:
-            log.popleft()
+            oldest = checkpoints[0].key
+            while log and (log[0][0], log[0][1]) <= oldest:
+                log.popleft()
 
 
 CONFIG_KEYS: Final = ("imu_to_body", "gravity", "method", "imu", "lever_arm", "parameters",
