@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 
 from kfusion.conventions import BRIDGED, TRACKED
 from kfusion.kalman.batch import (
+    BODY,
     _RowRecorder,
     apply_monitor,
     make_fusion,
@@ -196,7 +197,7 @@ def nearest_fix_distance(t: NDArray[np.float64], fixed: NDArray[np.bool_]
 
 
 def holdout_scales(recording: Recording, params: KalmanParameters, monitor: MonitorParameters,
-                   seed: int = 0) -> HorizonScales | None:
+                   seed: int = 0, measurement: str = BODY) -> HorizonScales | None:
     """The smoother's shadow gaps: hide visible fixes in gaps as long as the recording's own
     (those up to ``max_bridge_s``), smooth the copy, and collect per gap the variance scale
     each hidden fix needed (:func:`kfusion.monitor.required_scale`) by its distance to the
@@ -220,7 +221,7 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
                       spacing=0.5)
     if not hidden.gap_mask.any():
         return None
-    run = run_smoother(hidden.recording, params, monitor=None)
+    run = run_smoother(hidden.recording, params, monitor=None, measurement=measurement)
     fixed = run.result.status == TRACKED
     assert run.output_matrix is not None
     horizon = nearest_fix_distance(mocap.t, fixed)
@@ -244,10 +245,11 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
 
 def run_smoother(recording: Recording, params: KalmanParameters | None = None, *,
                  monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008 (frozen)
-                 **overrides: Any) -> SmootherRun:
+                 measurement: str = BODY, **overrides: Any) -> SmootherRun:
     """Forward :class:`KalmanFusion` pass storing rows, then the RTS backward pass; with a
     ``monitor`` (default), the forward filter's online monitor and the hold-out check of the
-    smoothed bound (module docstring)."""
+    smoothed bound (module docstring). ``measurement``: ``body`` or ``markers``
+    (:func:`kfusion.kalman.batch.process_recording`)."""
     params = resolve_parameters(recording, params, overrides)
     fusion = make_fusion(recording, params)
     watcher = make_monitor(recording, params, monitor)
@@ -269,7 +271,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
             transitions[row] = fusion._interval
         fusion._interval = np.eye(size)
 
-    process_recording(recording, fusion, on_row, watcher)
+    process_recording(recording, fusion, on_row, watcher, measurement)
     x_filtered, P_filtered = recorder.x, recorder.P
     x_smoothed = np.full((m, size), np.nan)
     P_smoothed = np.full((m, size, size), np.nan)
@@ -297,7 +299,8 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     status = smoothed_status
     position, variance = point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
                                          recorder.output_offset)
-    holdout = None if monitor is None else holdout_scales(recording, params, monitor)
+    holdout = None if monitor is None else holdout_scales(recording, params, monitor,
+                                                          measurement=measurement)
     if holdout is not None:
         bins = len(holdout.params.horizon_edges_s)
         table = np.broadcast_to(holdout.scale_table(), (m, bins))
@@ -322,16 +325,18 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
 
 def smooth_recording(recording: Recording, params: KalmanParameters | None = None, *,
                      monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008
-                     **overrides: Any) -> TrackResult:
+                     measurement: str = BODY, **overrides: Any) -> TrackResult:
     """Method ``smoother``: fixed-interval RTS estimate at every mocap row (offline gap filling).
 
     Args:
         recording: the recording (occluded mocap rows are NaN).
         params: parameters; None builds them from ``recording.info.imu``.
+        measurement: ``body`` (rigid-body fixes) or ``markers`` (marker-level fusion).
         overrides: parameter fields to replace.
 
     Returns:
         TrackResult: smoothed position (m), 1-sigma per axis from the smoothed P (m), status
         (:func:`smoother_status`) and time since the last accepted fix (s, forward in time).
     """
-    return run_smoother(recording, params, monitor=monitor, **overrides).result
+    return run_smoother(recording, params, monitor=monitor, measurement=measurement,
+                        **overrides).result

@@ -1,0 +1,118 @@
+"""Marker-level measurements for the position filter, as small pure functions.
+
+A rigid body carries markers at body-frame positions ``m_i`` (m, ``recording.yaml``'s
+``markers``). The filter's state holds the IMU point ``p`` (m, global frame); the rigid-body
+origin is ``p - R l`` (``R = R_global_body``, l the lever arm, 0 when ignored), so marker i is
+seen at::
+
+    z_i = p + R (m_i - l) + r_i = H x + c + R m_i + r_i
+
+with ``H x + c`` the filter's rigid-body point (:func:`kfusion.kalman.model.output_point`) and
+``r_i ~ N(0, sigma_m^2 I)`` the marker's own noise. One visible marker thus constrains the
+position in all three axes, given the orientation.
+
+The orientation is not a state of the position filter (:mod:`kfusion.kalman.orientation`): it is
+known with an error ``dtheta`` (rad, IMU frame, per-axis variance ``sigma_theta^2``),
+``R_true = R_global_imu Exp(dtheta) R_imu_body``. To first order the arm ``a_i = R (m_i - l)``
+(m, global frame) then moves by ``-[a_i x] R_global_imu dtheta``, and since the orientation
+covariance is isotropic (``sigma_theta^2 I`` in any frame)::
+
+    Cov(e_i, e_j) = sigma_theta^2 [a_i x] [a_j x]^T
+                  = sigma_theta^2 ((a_i . a_j) I - a_j a_i^T)
+
+One ``dtheta`` moves every marker, so the term is correlated between markers: the markers of a
+frame are fused as one stacked measurement (3k rows) with the full noise matrix
+(:func:`marker_noise`), never as k independent ones (which would average the orientation error
+away as if it were white).
+
+Gate: each marker is tested alone against its own 3x3 innovation covariance
+(:func:`marker_nis`), so a swapped marker is rejected while the others are fused.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+def skew(vector: ArrayLike) -> NDArray[np.float64]:
+    """``[v x]`` (3, 3): the matrix with ``[v x] w = v x w`` for v (3,)."""
+    x, y, z = (float(value) for value in np.asarray(vector, dtype=float))
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def marker_arms(R_global_body: ArrayLike, body_positions: ArrayLike,
+                lever_arm: ArrayLike) -> NDArray[np.float64]:
+    """Arms ``a_i = R_global_body (m_i - l)`` (k, 3), m, global frame: from the IMU point (the
+    filter's position state) to each marker.
+
+    Args:
+        R_global_body: (3, 3) body -> global.
+        body_positions: (k, 3) markers in the body frame, m.
+        lever_arm: (3,) IMU position in the body frame, m (zeros when ignored).
+    """
+    body = np.asarray(body_positions, dtype=float) - np.asarray(lever_arm, dtype=float)
+    return body @ np.asarray(R_global_body, dtype=float).T
+
+
+def marker_noise(arms: ArrayLike, marker_variance: float, angle_variance: float
+                 ) -> NDArray[np.float64]:
+    """Noise matrix (3k, 3k) m^2 of k markers fused together (module docstring)::
+
+        R_ij = delta_ij sigma_m^2 I + sigma_theta^2 [a_i x] [a_j x]^T
+
+    Args:
+        arms: (k, 3) arms ``a_i`` (:func:`marker_arms`), m.
+        marker_variance: ``sigma_m^2``, m^2, per axis.
+        angle_variance: ``sigma_theta^2``, rad^2, per axis of the orientation error.
+    """
+    arms = np.asarray(arms, dtype=float).reshape(-1, 3)
+    blocks = np.stack([skew(arm) for arm in arms]) if len(arms) else np.zeros((0, 3, 3))
+    stacked = blocks.reshape(-1, 3)  # (3k, 3): the [a_i x] stacked
+    R = angle_variance * (stacked @ stacked.T)
+    R[np.diag_indices_from(R)] += marker_variance
+    return R
+
+
+def stacked_measurement(H: ArrayLike, offset: ArrayLike, R_global_body: ArrayLike,
+                        body_positions: ArrayLike
+                        ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(H_k, c_k) of k markers, ``z = H_k x + c_k``: (3k, n) and (3k,).
+
+    ``H`` (3, n) and ``offset`` c (3,) map the state to the rigid-body origin (``H x + c``,
+    the filter's output map); marker i lies ``R_global_body m_i`` from it, so its rows are H
+    and its offset ``c + R m_i``."""
+    H = np.asarray(H, dtype=float)
+    body = np.asarray(body_positions, dtype=float).reshape(-1, 3)
+    offsets = np.asarray(offset, dtype=float)[None, :] + body @ np.asarray(
+        R_global_body, dtype=float).T
+    return np.tile(H, (len(body), 1)), offsets.ravel()
+
+
+def marker_nis(y: ArrayLike, S: ArrayLike) -> float:
+    """``y^T S^-1 y`` for one marker's innovation y (3,) m and covariance S (3, 3) m^2; inf when
+    it overflows or S is singular."""
+    y = np.asarray(y, dtype=float)
+    with np.errstate(over="ignore", invalid="ignore"):
+        try:
+            nis = float(y @ np.linalg.solve(np.asarray(S, dtype=float), y))
+        except np.linalg.LinAlgError:
+            return float("inf")
+    return nis if np.isfinite(nis) else float("inf")
+
+
+def marker_pose(points: ArrayLike, body_positions: ArrayLike
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """The rigid-body pose ``(p (3,) m, q_global_body (4,) [w, x, y, z])`` from visible markers
+    (k, 3) and their body positions (k, 3), by :func:`kfusion.rigid_body.solve_poses` (Kabsch,
+    with its collinearity and residual checks: a swapped marker makes the fit refused); None
+    with fewer than 3 markers or a refused fit."""
+    from kfusion.rigid_body import MIN_MARKERS, solve_poses  # kfusion.rigid_body imports more
+
+    points = np.asarray(points, dtype=float)
+    if len(points) < MIN_MARKERS:
+        return None
+    solution = solve_poses(points[None], np.asarray(body_positions, dtype=float))
+    if not solution.solved[0]:
+        return None
+    return solution.position[0], solution.quaternion[0]
