@@ -140,7 +140,7 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
                 monitor.imu(stamp, accelerometer[index], gyroscope[index])
             continue
         prior = fusion.estimate(t) if monitor is not None and monitor.has_gated_fix else None
-        if observed is not None:
+        if observed is not None and body is not None:
             outcome = fusion.update_markers(t, observed[index], body)
             if monitor is not None:
                 origin = outcome.marker_origin
