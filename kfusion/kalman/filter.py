@@ -100,6 +100,7 @@ from kfusion.guards import refuse_masked
 from kfusion.kalman import model
 from kfusion.kalman.events import imu_event_time
 from kfusion.kalman.markers import (
+    fit_angle_variance,
     marker_arms,
     marker_nis,
     marker_noise,
@@ -836,25 +837,31 @@ class KalmanFusion:
         pose = marker_pose(points, body)
         origin = None if pose is None else (float(pose[0][0]), float(pose[0][1]),
                                              float(pose[0][2]))
+        orientation = self._orientation
+        marker_variance = self.params.marker_position_noise ** 2
         q_global_imu: Quaternion | None = None
+        fit_variance = math.inf  # of the markers' own orientation (Kabsch), rad^2
         if pose is not None:
             q = pose[1]
             q_global_imu = normalise(quaternion_product(
                 (float(q[0]), float(q[1]), float(q[2]), float(q[3])), self._q_body_imu))
-            if self._orientation_disagrees(t, q_global_imu):
+            fit_variance = max(orientation.measurement_variance,
+                               fit_angle_variance(body, marker_variance))
+            if self._orientation_disagrees(t, q_global_imu, fit_variance):
                 self._counters["orientation_gated"] += 1
                 q_global_imu = None  # positions only: the orientation stays the gyro's
-        orientation = self._orientation
         if not orientation.state.initialised:
             if q_global_imu is None:
                 self._counters["no_orientation"] += 1
                 self._counters["occluded"] += 1
                 return UpdateOutcome(t, OCCLUDED, math.nan)
             orientation.initialise(q_global_imu)
+            state = orientation.state
+            state.covariance = (fit_variance, 0.0, state.covariance[2])
             self._R_current = None
             self._last_orientation_fix = t
-        if q_global_imu is not None:  # the markers' own orientation, to its noise
-            quaternion, angle_variance = q_global_imu, orientation.measurement_variance
+        if q_global_imu is not None:
+            quaternion, angle_variance = q_global_imu, fit_variance
         else:
             quaternion, angle_variance = orientation.state.quaternion, orientation.angle_variance
         H, offset = self._output_map(quaternion)
@@ -870,7 +877,7 @@ class KalmanFusion:
         R_global_body = matrix_from_quaternion(quaternion) @ self._R_imu_body
         H_all, offset_all = stacked_measurement(H, offset, R_global_body, body)
         R_all = marker_noise(marker_arms(R_global_body, body, self._lever_in_use(self._kf.x)),
-                             self.params.marker_position_noise ** 2, angle_variance)
+                             marker_variance, angle_variance)
         P = self._kf.P
         with np.errstate(over="ignore", invalid="ignore"):
             innovations = (points.ravel() - offset_all - H_all @ self._kf.x).reshape(-1, 3)
@@ -913,7 +920,7 @@ class KalmanFusion:
         self._kf.update(points[keep].ravel() - offset_all[rows], R=R_used, H=H_used)
         self._symmetrise()
         if q_global_imu is not None:
-            orientation.correct(q_global_imu)
+            orientation.correct(q_global_imu, fit_variance)
             self._R_current = None
             self._last_orientation_fix = t
         self._mark_fix(t)
@@ -941,19 +948,21 @@ class KalmanFusion:
         self._last_orientation_fix = None
         self._counters["resets"] += 1
 
-    def _orientation_disagrees(self, t: float, q_global_imu: Quaternion) -> bool:
+    def _orientation_disagrees(self, t: float, q_global_imu: Quaternion,
+                               measurement_variance: float | None = None) -> bool:
         """The mocap orientation fails the gate against the gyroscope-propagated one
         (:func:`kfusion.streamhealth.orientation_gated`), while that one is still valid (an
-        accepted orientation at most ``max_bridge_s`` ago)."""
+        accepted orientation at most ``max_bridge_s`` ago). ``measurement_variance``: the
+        orientation's noise (rad^2) when not the configured one."""
         state = self._orientation.state
         if not (state.initialised and self.params.gating and self._last_orientation_fix
                 is not None and t - self._last_orientation_fix <= self.params.max_bridge_s):
             return False
         innovation = quaternion_log(quaternion_product(conjugate(state.quaternion),
                                                        q_global_imu))
-        return streamhealth.orientation_gated(innovation, state.covariance[0],
-                                              self._orientation.measurement_variance,
-                                              self._gate)
+        return streamhealth.orientation_gated(
+            innovation, state.covariance[0], self._orientation.measurement_variance
+            if measurement_variance is None else measurement_variance, self._gate)
 
     def _mark_fix(self, t: float) -> None:
         self._outage_since_fix = False

@@ -89,6 +89,27 @@ def stacked_measurement(H: ArrayLike, offset: ArrayLike, R_global_body: ArrayLik
     return np.tile(H, (len(body), 1)), offsets.ravel()
 
 
+def fit_angle_variance(body_positions: ArrayLike, marker_variance: float) -> float:
+    """Per-axis variance (rad^2) of the orientation a Kabsch fit of these markers gives,
+    taken at its worst axis.
+
+    The fit's rotation error dtheta moves centred marker i by ``-[c_i x] dtheta``
+    (``c_i = m_i - mean m``, body frame); least squares over markers of noise sigma_m^2 gives
+    ``Cov(dtheta) = sigma_m^2 J^-1`` with ``J = sum_i [c_i x]^T [c_i x]
+    = sum_i (|c_i|^2 I - c_i c_i^T)``. The orientation filter keeps one variance for all axes,
+    so the largest, ``sigma_m^2 / lambda_min(J)``, is returned. (inf for collinear markers.)
+
+    Args:
+        body_positions: (k, 3) the fitted markers in the body frame, m; k >= 3.
+        marker_variance: sigma_m^2, m^2 per axis.
+    """
+    body = np.asarray(body_positions, dtype=float).reshape(-1, 3)
+    centred = body - body.mean(axis=0)
+    J = np.sum(centred * centred) * np.eye(3) - centred.T @ centred
+    smallest = float(np.linalg.eigvalsh(J)[0])
+    return marker_variance / smallest if smallest > 0 else float("inf")
+
+
 def marker_nis(y: ArrayLike, S: ArrayLike) -> float:
     """``y^T S^-1 y`` for one marker's innovation y (3,) m and covariance S (3, 3) m^2; inf when
     it overflows or S is singular."""
