@@ -306,3 +306,68 @@ def test_bad_marker_input_is_refused_with_clear_errors(partial, tmp_path, capsys
     assert main(["track", str(marked), "--out", str(out), "--method", "baseline",
                  "--force"]) == 0
     assert "(body measurement)" in capsys.readouterr().out
+
+
+def test_simulated_markers_are_opt_in_and_leave_the_other_draws_alone(partial):
+    plain = simulate("arm_lift", seed=5, duration=12.0, occlusions=OCCLUSIONS)
+    assert plain.recording.markers is None and plain.recording.info.markers is None
+    recording = partial.recording
+    np.testing.assert_array_equal(recording.imu.accelerometer, plain.recording.imu.accelerometer)
+    np.testing.assert_array_equal(partial.truth.position, plain.truth.position)
+    assert list(recording.info.markers) == ["M1", "M2", "M3", "M4"]
+    # mocap.csv is the rigid body exactly where 3 or more markers are seen, as Motive solves it
+    seen = recording.markers.visible.sum(axis=1)
+    np.testing.assert_array_equal(recording.mocap.visible, seen >= 3)
+    np.testing.assert_array_equal(partial.truth.occluded, seen < 3)
+    error = np.linalg.norm(recording.mocap.position - partial.truth.position, axis=1)
+    assert np.nanmax(error) < 3e-3 and np.nanmedian(error) < 0.6e-3
+    # the markers' noise is the spec's: seen - (p + R m) has std 0.5 mm per axis
+    from kfusion.conventions import matrix_from_wxyz
+
+    body = np.array(MarkerSpec().body_positions)
+    true = partial.truth.position[:, None, :] + np.einsum(
+        "kij,nj->kni", matrix_from_wxyz(partial.truth.quaternion), body)
+    assert np.nanstd(recording.markers.position - true) == pytest.approx(0.5e-3, rel=0.05)
+
+
+def test_occlusion_episodes_mostly_hide_one_or_two_markers():
+    from kfusion.simulate.markers import hidden_markers
+
+    episodes = np.zeros(40_000, dtype=bool)
+    for start in range(10, 40_000, 40):
+        episodes[start:start + 20] = True  # 1000 episodes of 20 frames
+    hidden = hidden_markers(episodes, MarkerSpec(), np.random.default_rng(3))
+    per_episode = np.array([hidden[start:start + 20].any(axis=0)
+                            for start in range(10, 40_000, 40)])
+    count = per_episode.sum(axis=1)
+    assert not hidden[~episodes].any()
+    assert np.mean((count == 1) | (count == 2)) == pytest.approx(0.80, abs=0.05)
+    assert np.mean(count == 4) == pytest.approx(0.10, abs=0.03)
+    # which markers are hidden is independent of the marker: each in a quarter to a half
+    assert np.all((per_episode.mean(axis=0) > 0.3) & (per_episode.mean(axis=0) < 0.6))
+    # one marker hides throughout an episode, others over their own part of it
+    assert (hidden[10:30].sum(axis=0) <= 20).all()
+    frames_all_hidden = hidden.all(axis=1).sum()
+    assert 0 < frames_all_hidden < (count == 4).sum() * 20
+
+
+def test_simulate_writes_c3d_that_converts_back(tmp_path, capsys):
+    pytest.importorskip("ezc3d", reason="ezc3d not installed: pip install 'kfusion[c3d]'")
+    folder, c3d = tmp_path / "sim", tmp_path / "take.c3d"
+    assert main(["simulate", "circle", "--seed", "4", "--duration", "8", "--markers",
+                 "--gap-max", "0.5", "--c3d", str(c3d), "--out", str(folder)]) == 0
+    assert f"wrote {c3d}" in capsys.readouterr().out
+    simulated = read_recording(folder)
+    converted_folder = tmp_path / "converted"
+    assert main(["convert", "c3d", str(c3d), "--markers", "M1,M2,M3,M4", "--imu",
+                 str(folder / "imu.csv"), "--imu-to-body", "1", "0", "0", "0",
+                 "--out", str(converted_folder)]) == 0
+    capsys.readouterr()
+    converted = read_recording(converted_folder)
+    np.testing.assert_allclose(converted.markers.t, simulated.markers.t, atol=1e-9)
+    np.testing.assert_array_equal(converted.markers.visible, simulated.markers.visible)
+    np.testing.assert_allclose(converted.markers.position, simulated.markers.position,
+                               atol=1e-6)  # float32 in mm
+    np.testing.assert_array_equal(converted.mocap.visible, simulated.mocap.visible)
+    assert main(["simulate", "circle", "--c3d", str(c3d), "--out", str(folder)]) == 2
+    assert "expected --markers too" in capsys.readouterr().err
