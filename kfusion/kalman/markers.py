@@ -124,16 +124,30 @@ def marker_nis(y: ArrayLike, S: ArrayLike) -> float:
 
 def marker_pose(points: ArrayLike, body_positions: ArrayLike
                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
-    """The rigid-body pose ``(p (3,) m, q_global_body (4,) [w, x, y, z])`` from visible markers
-    (k, 3) and their body positions (k, 3), by :func:`kfusion.rigid_body.solve_poses` (Kabsch,
-    with its collinearity and residual checks: a swapped marker makes the fit refused); None
-    with fewer than 3 markers or a refused fit."""
-    from kfusion.rigid_body import MIN_MARKERS, solve_poses  # kfusion.rigid_body imports more
+    """The rigid-body pose ``(p (3,) m, q_global_body (4,) [w, x, y, z], w >= 0)`` from visible
+    markers (k, 3) and their body positions (k, 3): the Kabsch fit of
+    :func:`kfusion.rigid_body.fit_pose`, with the checks of
+    :func:`kfusion.rigid_body.solve_poses` for one frame. None with fewer than
+    :data:`~kfusion.rigid_body.MIN_MARKERS` markers, nearly collinear ones (the rotation about
+    their line is undetermined), or a marker missing the fitted cluster by more than
+    :data:`~kfusion.rigid_body.DEFAULT_MAX_RESIDUAL` (a swapped marker)."""
+    from scipy.spatial.transform import Rotation
 
-    points = np.asarray(points, dtype=float)
-    if len(points) < MIN_MARKERS:
+    from kfusion.conventions import wxyz_from_rotation
+    from kfusion.rigid_body import (  # kfusion.rigid_body imports kfusion.calibration
+        DEFAULT_MAX_RESIDUAL,
+        MIN_CLUSTER_SPREAD,
+        MIN_MARKERS,
+        fit_pose,
+        line_spread,
+    )
+
+    seen = np.asarray(points, dtype=float)
+    body = np.asarray(body_positions, dtype=float)
+    if len(seen) < MIN_MARKERS or line_spread(body) < MIN_CLUSTER_SPREAD:
         return None
-    solution = solve_poses(points[None], np.asarray(body_positions, dtype=float))
-    if not solution.solved[0]:
+    rotation, origin = fit_pose(body, seen)
+    misses = seen - origin - body @ rotation.T
+    if float(np.max(np.sum(misses * misses, axis=1))) > DEFAULT_MAX_RESIDUAL ** 2:
         return None
-    return solution.position[0], solution.quaternion[0]
+    return origin, wxyz_from_rotation(Rotation.from_matrix(rotation))
