@@ -100,6 +100,7 @@ from kfusion.guards import refuse_masked
 from kfusion.kalman import model
 from kfusion.kalman.events import imu_event_time
 from kfusion.kalman.markers import (
+    common_error_variance,
     fit_angle_variance,
     marker_arms,
     marker_nis,
@@ -251,6 +252,7 @@ class KalmanSnapshot:
     last_orientation_fix: float | None = None
     imu_interval: float | None = None
     last_frame_fused: bool = False
+    frames_on_gyroscope: int = 0
 
 
 def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
@@ -341,6 +343,9 @@ class KalmanFusion:
         self._outage_since_fix = False  # an interval without IMU since the last fix
         self._imu_interval: float | None = None  # the last interval between IMU samples, s
         self._last_orientation_fix: float | None = None
+        # marker frames fused with the gyroscope's orientation since the last orientation fix
+        # (:meth:`update_markers`: their orientation errors are one and the same)
+        self._frames_on_gyroscope = 0
         self._counters = dict.fromkeys(COUNTER_NAMES, 0)
         # smoother support (see kfusion.kalman.smoother): product of the transitions since the
         # smoother last reset it, and the prior of the last fused fix
@@ -566,6 +571,7 @@ class KalmanFusion:
             last_orientation_fix=self._last_orientation_fix,
             imu_interval=self._imu_interval,
             last_frame_fused=self._last_frame_fused,
+            frames_on_gyroscope=self._frames_on_gyroscope,
         )
 
     def restore(self, snapshot: KalmanSnapshot) -> None:
@@ -596,6 +602,7 @@ class KalmanFusion:
         self._last_orientation_fix = snapshot.last_orientation_fix
         self._imu_interval = snapshot.imu_interval
         self._last_frame_fused = snapshot.last_frame_fused
+        self._frames_on_gyroscope = snapshot.frames_on_gyroscope
 
     # ------------------------------------------------------------------ internals
 
@@ -819,6 +826,7 @@ class KalmanFusion:
             self._orientation.correct(q_global_imu)
             self._R_current = None
             self._last_orientation_fix = t
+            self._frames_on_gyroscope = 0
         self._mark_fix(t)
         if kind == REACQUIRED:
             self._counters["reacquired"] += 1
@@ -863,7 +871,12 @@ class KalmanFusion:
         if q_global_imu is not None:
             quaternion, angle_variance = q_global_imu, fit_variance
         else:
-            quaternion, angle_variance = orientation.state.quaternion, orientation.angle_variance
+            # the gyroscope's orientation error is the same in this frame as in the previous
+            # frames fused with it: counted once in all (module docstring of kfusion.kalman.
+            # markers, "Correlated orientation error")
+            quaternion = orientation.state.quaternion
+            angle_variance = common_error_variance(orientation.angle_variance,
+                                                   self._frames_on_gyroscope + 1)
         H, offset = self._output_map(quaternion)
         if not self._initialised:
             if pose is None or q_global_imu is None:
@@ -923,6 +936,9 @@ class KalmanFusion:
             orientation.correct(q_global_imu, fit_variance)
             self._R_current = None
             self._last_orientation_fix = t
+            self._frames_on_gyroscope = 0
+        else:
+            self._frames_on_gyroscope += 1
         self._mark_fix(t)
         self._counters["markers_used"] += used
         if kind == REACQUIRED:

@@ -25,6 +25,16 @@ frame are fused as one stacked measurement (3k rows) with the full noise matrix
 (:func:`marker_noise`), never as k independent ones (which would average the orientation error
 away as if it were white).
 
+Correlated orientation error. With fewer than 3 markers the orientation is the gyroscope's, and
+its error ``dtheta`` barely changes from one frame to the next: it is common to every frame fused
+with it since the last orientation fix, while the filter takes each frame's noise as new. N
+measurements ``z_k = p + c + w_k`` with a common error c (variance sigma_c^2) and independent
+ones w_k (sigma_w^2), fused as if independent with the common part's variance inflated to
+``N sigma_c^2``, give ``Var(p) = sigma_c^2 + sigma_w^2 / N``: the true variance of their mean
+(:func:`common_error_variance`). So the k-th frame since the orientation fix takes
+``sigma_theta^2 k`` in its noise: the bound never averages the orientation error away, at the
+price of some information.
+
 Gate: each marker is tested alone against its own 3x3 innovation covariance
 (:func:`marker_nis`), so a swapped marker is rejected while the others are fused.
 """
@@ -108,6 +118,12 @@ def fit_angle_variance(body_positions: ArrayLike, marker_variance: float) -> flo
     J = np.sum(centred * centred) * np.eye(3) - centred.T @ centred
     smallest = float(np.linalg.eigvalsh(J)[0])
     return marker_variance / smallest if smallest > 0 else float("inf")
+
+
+def common_error_variance(variance: float, frames: int) -> float:
+    """Variance (same unit) to give a common error in the ``frames``-th (>= 1) measurement that
+    shares it: ``frames variance`` (module docstring, "Correlated orientation error")."""
+    return variance * max(int(frames), 1)
 
 
 def marker_nis(y: ArrayLike, S: ArrayLike) -> float:
