@@ -84,6 +84,38 @@ def test_one_marker_update_by_hand():
     assert fusion.counters["markers_used"] == 1
 
 
+def test_a_shared_orientation_error_is_counted_once_per_run(monkeypatch):
+    """The k-th frame fused with the gyroscope's orientation since the last orientation fix
+    takes k sigma_o^2 (online); offline, every frame of a run of K takes K sigma_o^2. With
+    m = (0.1, 0, 0) the orientation part of R is sigma_o^2 k diag(0, 0.01, 0.01)."""
+    from kfusion.kalman.markers import common_error_variance, shared_run_lengths
+
+    np.testing.assert_array_equal(shared_run_lengths([4, 2, 1, 3, 0, 0, 4, 2]),
+                                  [0, 2, 2, 0, 2, 2, 0, 1])
+    assert common_error_variance(2.0, 3) == 6.0
+    noises = []
+    original = KalmanFilter.update
+
+    def capture(self, z, R=None, H=None):
+        noises.append(np.array(R))
+        return original(self, z, R=R, H=H)
+
+    monkeypatch.setattr(KalmanFilter, "update", capture)
+    marker = np.array([[0.1, 0.0, 0.0]])
+    for shared, expected in ((None, [1, 2, 3]), (5, [5, 5, 5])):
+        noises.clear()
+        fusion = KalmanFusion(IDENTITY, GRAVITY, params(), lever_arm=np.zeros(3))
+        fusion.update(0.0, np.zeros(3), IDENTITY)
+        for k in range(3):
+            fusion.update_markers(0.0, marker, marker, shared_frames=shared)
+        orientation_part = [R[1, 1] - 1e-6 for R in noises[:3]]  # sigma_m^2 = 1e-6
+        np.testing.assert_allclose(orientation_part, 1e-4 * 0.01 * np.array(expected),
+                                   rtol=1e-9)
+        fusion.update(0.0, np.zeros(3), IDENTITY)  # an orientation fix starts a new run
+        fusion.update_markers(0.0, marker, marker)
+        assert noises[-1][1, 1] - 1e-6 < 1e-4 * 0.01 * 1.0001
+
+
 def test_three_markers_give_the_orientation_and_fuse_with_correlated_noise():
     """Three markers where the body is rotated 90 degrees about z: the first frame initialises
     position (the Kabsch origin) and orientation from them."""
@@ -204,7 +236,7 @@ def test_push_markers_equals_kfusion_track_with_markers_bit_for_bit(partial, tmp
     folder = write_simulation(partial, tmp_path / "recording")
     out = tmp_path / "track.csv"
     assert main(["track", str(folder), "--out", str(out), "--force"]) == 0
-    assert "(markers measurement)" in capsys.readouterr().out
+    assert "measurement: markers)" in capsys.readouterr().out
     recording = read_recording(folder)
     batch = run_filter(recording, measurement="markers")
     from kfusion.track_file import read_track
@@ -305,7 +337,7 @@ def test_bad_marker_input_is_refused_with_clear_errors(partial, tmp_path, capsys
     assert "fuses rigid bodies only" in capsys.readouterr().err
     assert main(["track", str(marked), "--out", str(out), "--method", "baseline",
                  "--force"]) == 0
-    assert "(body measurement)" in capsys.readouterr().out
+    assert "measurement: body)" in capsys.readouterr().out
 
 
 def test_simulated_markers_are_opt_in_and_leave_the_other_draws_alone(partial):

@@ -103,6 +103,6 @@ def run(args: argparse.Namespace) -> int:
     path = write_track_csv(result, args.out)
     counts = {status: int(np.sum(result.status == status)) for status in STATUSES}
     summary = ", ".join(f"{count} {status}" for status, count in counts.items())
-    print(f"{args.method} ({measurement} measurement): wrote {len(result)} rows to {path} "
-          f"({summary})")
+    print(f"{args.method}: wrote {len(result)} rows to {path} ({summary}; measurement: "
+          f"{measurement})")
     return 0

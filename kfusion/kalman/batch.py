@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from kfusion.conventions import BRIDGED, LOST
 from kfusion.kalman.events import IMU_STREAM, merge_events
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
+from kfusion.kalman.markers import shared_run_lengths
 from kfusion.kalman.model import output_covariance, output_point
 from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
 from kfusion.monitor import ConsistencyMonitor, MonitorParameters, MonitorReport
@@ -98,7 +99,7 @@ def marker_inputs(recording: Recording) -> tuple[NDArray[np.float64], NDArray[np
 def process_recording(recording: Recording, fusion: KalmanFusion,
                       on_row: Callable[[int, UpdateOutcome], None],
                       monitor: ConsistencyMonitor | None = None,
-                      measurement: str = BODY) -> None:
+                      measurement: str = BODY, offline: bool = False) -> None:
     """Feed every IMU sample and mocap row to ``fusion`` in the fusion order
     (:func:`kfusion.kalman.events.merge_events`: by time on the mocap clock, an IMU sample at its
     stamp minus ``imu_latency_s``, the IMU sample first at equal times) and call
@@ -111,11 +112,14 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
 
     ``measurement``: ``body`` fuses each row's rigid-body pose, ``markers`` each row's visible
     markers (:func:`marker_inputs`; the monitor then sees the markers' Kabsch pose, where 3 or
-    more fit)."""
+    more fit). ``offline`` (the smoother): each marker frame is told how many frames share its
+    gyroscope orientation error (``shared_frames`` of :meth:`KalmanFusion.update_markers`)."""
     if measurement not in MEASUREMENTS:
         raise ValueError(f"measurement: expected one of {list(MEASUREMENTS)}, got "
                          f"{measurement!r}")
     observed, body = marker_inputs(recording) if measurement == MARKERS else (None, None)
+    shared = (shared_run_lengths(np.isfinite(observed).all(axis=2).sum(axis=1)).tolist()
+              if observed is not None and offline else None)
     recording = on_mocap_clock(recording)
     imu = recording.imu
     mocap = recording.mocap
@@ -141,7 +145,9 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
             continue
         prior = fusion.estimate(t) if monitor is not None and monitor.has_gated_fix else None
         if observed is not None and body is not None:
-            outcome = fusion.update_markers(t, observed[index], body)
+            outcome = fusion.update_markers(
+                t, observed[index], body,
+                shared_frames=None if shared is None else shared[index] or None)
             if monitor is not None:
                 origin = outcome.marker_origin
                 monitor.mocap(t, None if origin is None else np.array(origin), outcome, fusion,

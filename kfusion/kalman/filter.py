@@ -466,8 +466,8 @@ class KalmanFusion:
                 q_global_body = None  # not a unit quaternion: a position-only fix
         return self._update_valid(t, z, q_global_body)
 
-    def update_markers(self, t: float, observed: ArrayLike,
-                       body_positions: ArrayLike) -> UpdateOutcome:
+    def update_markers(self, t: float, observed: ArrayLike, body_positions: ArrayLike, *,
+                       shared_frames: int | None = None) -> UpdateOutcome:
         """Advance to t (s) holding the last IMU sample, then fuse a frame of individual markers
         (marker-level fusion, :mod:`kfusion.kalman.markers`).
 
@@ -486,6 +486,11 @@ class KalmanFusion:
             t: frame time, s; not before the state's time.
             observed: (k, 3) global marker positions, m; a row with any NaN or inf is occluded.
             body_positions: (k, 3) the same markers in the body frame, m (finite).
+            shared_frames: offline only: how many frames share this frame's gyroscope
+                orientation error (the run of frames with fewer than 3 markers it belongs to),
+                so that each counts it ``shared_frames`` times and any combination of them (a
+                smoother's) stays covered; None (online): the frames fused with it so far
+                (:func:`kfusion.kalman.markers.common_error_variance`).
 
         Returns:
             :class:`UpdateOutcome` with ``markers_used`` and ``markers_gated``: ``occluded``
@@ -512,7 +517,7 @@ class KalmanFusion:
         if not np.isfinite(body).all():
             raise ValueError("update_markers: body_positions: expected finite numbers (m)")
         visible = np.isfinite(seen).all(axis=1)
-        return self._update_markers_valid(t, seen[visible], body[visible])
+        return self._update_markers_valid(t, seen[visible], body[visible], shared_frames)
 
     def estimate(self, t: float | None = None) -> FilterEstimate:
         """The estimate at t (s; default: the state's time). A later t extrapolates holding the
@@ -833,7 +838,8 @@ class KalmanFusion:
         return UpdateOutcome(t, kind, nis)
 
     def _update_markers_valid(self, t: float, points: NDArray[np.float64],
-                              body: NDArray[np.float64]) -> UpdateOutcome:
+                              body: NDArray[np.float64], shared_frames: int | None = None
+                              ) -> UpdateOutcome:
         """update_markers() after validation: ``points`` (k, 3) the visible markers (finite),
         ``body`` (k, 3) their body-frame positions."""
         self._advance(t)
@@ -875,8 +881,10 @@ class KalmanFusion:
             # frames fused with it: counted once in all (module docstring of kfusion.kalman.
             # markers, "Correlated orientation error")
             quaternion = orientation.state.quaternion
-            angle_variance = common_error_variance(orientation.angle_variance,
-                                                   self._frames_on_gyroscope + 1)
+            frames = self._frames_on_gyroscope + 1
+            angle_variance = common_error_variance(orientation.angle_variance, frames
+                                                   if shared_frames is None
+                                                   else max(frames, shared_frames))
         H, offset = self._output_map(quaternion)
         if not self._initialised:
             if pose is None or q_global_imu is None:

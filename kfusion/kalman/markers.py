@@ -33,7 +33,10 @@ ones w_k (sigma_w^2), fused as if independent with the common part's variance in
 ``N sigma_c^2``, give ``Var(p) = sigma_c^2 + sigma_w^2 / N``: the true variance of their mean
 (:func:`common_error_variance`). So the k-th frame since the orientation fix takes
 ``sigma_theta^2 k`` in its noise: the bound never averages the orientation error away, at the
-price of some information.
+price of some information. A smoother combines each frame with the *later* frames of the same
+run too, which share the error; offline, every frame of a run of K frames takes
+``sigma_theta^2 K``, and any subset S of them fused as independent then has
+``(K sigma_c^2 + sigma_w^2) / |S| >= sigma_c^2 + sigma_w^2 / |S|``: covered.
 
 Gate: each marker is tested alone against its own 3x3 innovation covariance
 (:func:`marker_nis`), so a swapped marker is rejected while the others are fused.
@@ -118,6 +121,19 @@ def fit_angle_variance(body_positions: ArrayLike, marker_variance: float) -> flo
     J = np.sum(centred * centred) * np.eye(3) - centred.T @ centred
     smallest = float(np.linalg.eigvalsh(J)[0])
     return marker_variance / smallest if smallest > 0 else float("inf")
+
+
+def shared_run_lengths(counts: ArrayLike, enough: int = 3) -> NDArray[np.int_]:
+    """Per frame (m,), the length of the run of consecutive frames with fewer than ``enough``
+    visible markers it belongs to (0 for frames with enough): the frames that share one
+    gyroscope orientation error (offline ``shared_frames`` of the filter)."""
+    few = np.asarray(counts) < enough
+    lengths = np.zeros(len(few), dtype=int)
+    padded = np.concatenate([[False], few, [False]])
+    edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        lengths[start:stop] = stop - start
+    return lengths
 
 
 def common_error_variance(variance: float, frames: int) -> float:
