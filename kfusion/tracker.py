@@ -847,7 +847,8 @@ class Tracker:
         ``method``, ``imu``, ``lever_arm``, ``parameters`` (the method's fields),
         ``tracker`` (:class:`TrackerOptions` fields) and ``recording.yaml``'s clock model and
         measured noise (``imu_time_offset``, ``imu_clock_drift_ppm``, ``imu_noise``: they
-        mean what they mean there). ValueError names ``source`` and any unknown key."""
+        mean what they mean there) and its ``markers`` (for :meth:`push_markers`). ValueError
+        names ``source`` and any unknown key."""
         if not isinstance(mapping, Mapping):
             raise ValueError(f"{source}: expected a mapping with keys {list(CONFIG_KEYS)}, got "
                              f"{type(mapping).__name__}")
@@ -874,7 +875,7 @@ class Tracker:
             imu, ImuProfile) else imu
         # the clock and noise keys as recording.yaml defines them, read by its own parser
         info = parse_info({key: mapping[key] for key in
-                           ("imu_time_offset", "imu_clock_drift_ppm", "imu_noise")
+                           ("imu_time_offset", "imu_clock_drift_ppm", "imu_noise", "markers")
                            if key in mapping}, source, require_mount=False)
         if info.imu_noise is not None:
             profile = dataclasses.replace(profile, **info.imu_noise.overrides())
@@ -886,15 +887,16 @@ class Tracker:
             return cls(mapping["imu_to_body"], mapping["gravity"], method=method, imu=profile,
                        params=params, lever_arm=mapping.get("lever_arm"), options=options,
                        imu_time_offset=info.imu_time_offset,
-                       imu_clock_drift_ppm=info.imu_clock_drift_ppm)
+                       imu_clock_drift_ppm=info.imu_clock_drift_ppm,
+                       markers=info.markers if method == "kalman" else None)
         except ValueError as error:
             raise ValueError(f"{source}: {error}") from None
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Tracker:
         """A tracker from a YAML file (schema of :meth:`from_mapping`), such as a recording's
-        ``recording.yaml``: its ``name`` (a label) and ``markers`` (used by converters, not by the
-        Tracker yet) keys are ignored."""
+        ``recording.yaml``: its ``name`` (a label) is ignored, its ``markers`` (body-frame
+        positions) serve :meth:`push_markers`."""
         path = Path(path)
         if not path.is_file():
             raise ValueError(f"{path}: file not found")
@@ -904,7 +906,7 @@ class Tracker:
             reason = f"not valid YAML ({error.reason})" if error.syntax else error.reason
             raise ValueError(f"{path}: {reason}") from None
         if isinstance(data, dict):
-            data = {key: value for key, value in data.items() if key not in ("name", "markers")}
+            data = {key: value for key, value in data.items() if key != "name"}
         return cls.from_mapping(data, source=str(path))
 
     def _new_estimator(self) -> _Estimator:
@@ -1440,7 +1442,7 @@ class Tracker:
 
 
 CONFIG_KEYS: Final = ("imu_to_body", "gravity", "method", "imu", "lever_arm", "parameters",
-                      "tracker", "imu_time_offset", "imu_clock_drift_ppm", "imu_noise")
+                      "tracker", "imu_time_offset", "imu_clock_drift_ppm", "imu_noise", "markers")
 """Keys of a tracker YAML file (:meth:`Tracker.from_yaml`)."""
 
 

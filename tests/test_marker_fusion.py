@@ -403,3 +403,15 @@ def test_simulate_writes_c3d_that_converts_back(tmp_path, capsys):
     np.testing.assert_array_equal(converted.mocap.visible, simulated.mocap.visible)
     assert main(["simulate", "circle", "--c3d", str(c3d), "--out", str(folder)]) == 2
     assert "expected --markers too" in capsys.readouterr().err
+
+
+def test_a_tracker_from_recording_yaml_takes_its_markers(partial, tmp_path):
+    folder = write_simulation(partial, tmp_path / "recording")
+    tracker = Tracker.from_yaml(folder / "recording.yaml")
+    recording = partial.recording
+    for row in range(3):
+        tracker.push_imu(recording.imu.t[2 * row], recording.imu.accelerometer[2 * row],
+                         recording.imu.gyroscope[2 * row])
+        outcome = tracker.push_markers(recording.mocap.t[row], marker_frame(recording, row))
+        assert outcome.accepted
+    assert tracker.health.markers_used == 12 and tracker.health.mocap_fused == 3
