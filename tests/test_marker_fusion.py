@@ -106,7 +106,7 @@ def test_a_shared_orientation_error_is_counted_once_per_run(monkeypatch):
         noises.clear()
         fusion = KalmanFusion(IDENTITY, GRAVITY, params(), lever_arm=np.zeros(3))
         fusion.update(0.0, np.zeros(3), IDENTITY)
-        for k in range(3):
+        for _ in range(3):
             fusion.update_markers(0.0, marker, marker, shared_frames=shared)
         orientation_part = [R[1, 1] - 1e-6 for R in noises[:3]]  # sigma_m^2 = 1e-6
         np.testing.assert_allclose(orientation_part, 1e-4 * 0.01 * np.array(expected),

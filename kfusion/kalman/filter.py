@@ -450,12 +450,7 @@ class KalmanFusion:
             lost): then it is accepted as a re-acquisition (after inflating the position
             and velocity covariance if it would have failed the gate).
         """
-        t = float(t)
-        if not math.isfinite(t):
-            raise ValueError(f"update: expected a finite time in s, got {t!r}")
-        if self._time is not None and t < self._time:
-            raise ValueError(f"update: timestamp {t!r} s is before the filter's time "
-                             f"({self._time!r} s); expected events in time order")
+        t = self._frame_time(t, "update")
         z = None if position is None else _vector(position, 3, "position")
         q_global_body = None if quaternion is None else _vector(quaternion, 4, "quaternion")
         if z is not None and not np.isfinite(z).all():
@@ -501,12 +496,7 @@ class KalmanFusion:
             ValueError: shapes other than (k, 3), non-finite body positions, a non-finite t or
                 a t before the state's time.
         """
-        t = float(t)
-        if not math.isfinite(t):
-            raise ValueError(f"update_markers: expected a finite time in s, got {t!r}")
-        if self._time is not None and t < self._time:
-            raise ValueError(f"update_markers: timestamp {t!r} s is before the filter's time "
-                             f"({self._time!r} s); expected events in time order")
+        t = self._frame_time(t, "update_markers")
         refuse_masked("observed", observed)
         refuse_masked("body_positions", body_positions)
         seen = np.asarray(observed, dtype=float)
@@ -518,6 +508,17 @@ class KalmanFusion:
             raise ValueError("update_markers: body_positions: expected finite numbers (m)")
         visible = np.isfinite(seen).all(axis=1)
         return self._update_markers_valid(t, seen[visible], body[visible], shared_frames)
+
+    def _frame_time(self, t: float, where: str) -> float:
+        """A mocap frame's time as a float: ValueError (naming ``where``) unless finite and not
+        before the state's time."""
+        t = float(t)
+        if not math.isfinite(t):
+            raise ValueError(f"{where}: expected a finite time in s, got {t!r}")
+        if self._time is not None and t < self._time:
+            raise ValueError(f"{where}: timestamp {t!r} s is before the filter's time "
+                             f"({self._time!r} s); expected events in time order")
+        return t
 
     def estimate(self, t: float | None = None) -> FilterEstimate:
         """The estimate at t (s; default: the state's time). A later t extrapolates holding the
@@ -818,11 +819,7 @@ class KalmanFusion:
         if since >= self.params.reacquire_after_s:
             kind = REACQUIRED
             if nis > self._gate:
-                position_variance, velocity_variance = model.reacquisition_inflation(y, since)
-                P = P.copy()
-                P[model.POSITION, model.POSITION] += position_variance * np.eye(3)
-                P[model.VELOCITY, model.VELOCITY] += velocity_variance * np.eye(3)
-                self._kf.P = P
+                self._inflate_for_reacquisition(y, since)
         if self._interval is not None:
             self._prior = (np.array(self._kf.x, dtype=float), np.array(self._kf.P, dtype=float))
         self._kf.update(z - offset, H=H)
@@ -929,12 +926,7 @@ class KalmanFusion:
         if since >= self.params.reacquire_after_s:
             kind = REACQUIRED
             if max(nis_each[i] for i in np.flatnonzero(keep)) > self._gate:
-                position_variance, velocity_variance = model.reacquisition_inflation(
-                    innovations[keep].mean(axis=0), since)
-                P = P.copy()
-                P[model.POSITION, model.POSITION] += position_variance * np.eye(3)
-                P[model.VELOCITY, model.VELOCITY] += velocity_variance * np.eye(3)
-                self._kf.P = P
+                self._inflate_for_reacquisition(innovations[keep].mean(axis=0), since)
         if self._interval is not None:
             self._prior = (np.array(self._kf.x, dtype=float), np.array(self._kf.P, dtype=float))
         # z - c = H x + r, fused as one stacked measurement (filterpy's Joseph-form update)
@@ -953,6 +945,16 @@ class KalmanFusion:
             self._counters["reacquired"] += 1
         return UpdateOutcome(t, kind, nis, markers_used=used, markers_gated=rejected,
                              marker_origin=origin)
+
+    def _inflate_for_reacquisition(self, innovation: NDArray[np.float64], since: float
+                                   ) -> None:
+        """Add :func:`kfusion.kalman.model.reacquisition_inflation` of the innovation (3,) m
+        after ``since`` s without a fix to the position and velocity covariance."""
+        position_variance, velocity_variance = model.reacquisition_inflation(innovation, since)
+        P = self._kf.P.copy()
+        P[model.POSITION, model.POSITION] += position_variance * np.eye(3)
+        P[model.VELOCITY, model.VELOCITY] += velocity_variance * np.eye(3)
+        self._kf.P = P
 
     def _finite(self) -> bool:
         """False when a propagation overflowed (an interval of 1e200 s, say)."""
