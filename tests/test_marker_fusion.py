@@ -62,6 +62,18 @@ def test_skew_and_orientation_noise_follow_their_formula():
                                [[0.0, 0.08, 0.0]], atol=1e-15)
 
 
+def test_marker_gate_rejects_each_marker_alone():
+    from kfusion.kalman.markers import marker_gate
+
+    y = np.array([[0.001, 0, 0], [0.02, 0, 0], [0.005, 0, 0], [np.inf, 0, 0]])
+    nis = [1.0, 400.0, 400.0, np.inf]  # the third is far out but within the 1 cm floor
+    np.testing.assert_array_equal(marker_gate(nis, y, 21.1, 0.01, True),
+                                  [True, False, True, False])
+    # past max_bridge_s the prediction is lost: every finite marker re-acquires
+    np.testing.assert_array_equal(marker_gate(nis, y, 21.1, 0.01, False),
+                                  [True, True, True, False])
+
+
 def test_one_marker_update_by_hand():
     """After a body fix at p0 (P_pp = sigma_p^2 I, orientation variance sigma_o^2, identity
     orientation), one marker at m = (0.1, 0, 0) seen at p0 + m + y. Its noise is

@@ -103,6 +103,7 @@ from kfusion.kalman.markers import (
     common_error_variance,
     fit_angle_variance,
     marker_arms,
+    marker_gate,
     marker_nis,
     marker_noise,
     marker_pose,
@@ -904,11 +905,8 @@ class KalmanFusion:
                                + R_all[3 * i:3 * i + 3, 3 * i:3 * i + 3])
                     for i in range(len(points))]
         since = t - self._last_fix if self._last_fix is not None else math.inf
-        floor = self.params.gate_min_innovation ** 2
-        failed = np.array([nis > self._gate and float(y @ y) > floor
-                           for nis, y in zip(nis_each, innovations, strict=True)])
-        absurd = ~np.isfinite(np.asarray(nis_each)) | ~np.isfinite(innovations).all(axis=1)
-        keep = ~absurd & (~failed if since <= self.params.max_bridge_s else True)
+        keep = marker_gate(nis_each, innovations, self._gate, self.params.gate_min_innovation,
+                           since <= self.params.max_bridge_s)
         rejected = int(len(points) - keep.sum())
         self._counters["markers_gated"] += rejected
         if not keep.any():

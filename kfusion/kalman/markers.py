@@ -44,6 +44,8 @@ Gate: each marker is tested alone against its own 3x3 innovation covariance
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -140,6 +142,23 @@ def common_error_variance(variance: float, frames: int) -> float:
     """Variance (same unit) to give a common error in the ``frames``-th (>= 1) measurement that
     shares it: ``frames variance`` (module docstring, "Correlated orientation error")."""
     return variance * max(int(frames), 1)
+
+
+def marker_gate(nis: Sequence[float], innovations: ArrayLike, threshold: float,
+                min_innovation: float, prediction_valid: bool) -> NDArray[np.bool_]:
+    """Which of k markers pass their own gate (k,): a marker fails when its NIS
+    (:func:`marker_nis`, 3 dof) exceeds ``threshold`` *and* its innovation (3,) m is longer
+    than ``min_innovation`` (m), as a rigid-body fix does
+    (:class:`kfusion.kalman.KalmanFusion`); failing markers are rejected only while the
+    prediction is valid (``prediction_valid``: at most ``max_bridge_s`` after the last fix;
+    later every marker re-acquires). A marker whose innovation overflowed never passes."""
+    values = np.asarray(nis, dtype=float)
+    y = np.asarray(innovations, dtype=float).reshape(-1, 3)
+    with np.errstate(over="ignore", invalid="ignore"):
+        length_squared = np.sum(y * y, axis=1)
+    failed = (values > threshold) & (length_squared > min_innovation ** 2)
+    absurd = ~np.isfinite(values) | ~np.isfinite(y).all(axis=1)
+    return ~absurd & ~(failed & prediction_valid)
 
 
 def marker_nis(y: ArrayLike, S: ArrayLike) -> float:
