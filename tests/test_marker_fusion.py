@@ -244,8 +244,11 @@ def marker_frame(recording, row: int) -> dict:
             for index, name in enumerate(markers.names)}
 
 
-def test_push_markers_equals_kfusion_track_with_markers_bit_for_bit(partial, tmp_path, capsys):
-    folder = write_simulation(partial, tmp_path / "recording")
+def test_push_markers_equals_kfusion_track_with_markers_bit_for_bit(tmp_path, capsys):
+    simulation = simulate("random_reach", seed=2, duration=6.0, markers=MarkerSpec(),
+                          occlusions=OCCLUSIONS)
+    assert (simulation.recording.markers.visible.sum(axis=1) < 3).sum() > 30
+    folder = write_simulation(simulation, tmp_path / "recording")
     out = tmp_path / "track.csv"
     assert main(["track", str(folder), "--out", str(out), "--force"]) == 0
     assert "measurement: markers)" in capsys.readouterr().out
