@@ -96,6 +96,35 @@ def test_one_marker_update_by_hand():
     assert fusion.counters["markers_used"] == 1
 
 
+def test_two_markers_fused_together_match_a_direct_numpy_update():
+    """Two markers on a rotated body with a given lever arm, against the Kalman update written
+    out in numpy: z = p - R l + R m_i, R_ij = delta_ij sigma_m^2 I + sigma_o^2 [a_i x][a_j x]^T
+    with a_i = R (m_i - l), K = P H^T (H P H^T + R)^-1, P+ = (I - K H) P."""
+    angle = 0.7
+    q = np.array([math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2)])  # about z
+    rotation = np.array([[math.cos(angle), -math.sin(angle), 0.0],
+                         [math.sin(angle), math.cos(angle), 0.0], [0.0, 0.0, 1.0]])
+    lever = np.array([0.01, -0.02, 0.005])
+    fusion = KalmanFusion(IDENTITY, GRAVITY, params(), lever_arm=lever)
+    origin = np.array([0.2, 1.0, -0.3])
+    fusion.update(0.0, origin, q)
+    x0, P0 = fusion.x, fusion.P
+    body = np.array([[0.05, 0.01, 0.0], [-0.02, 0.04, 0.03]])
+    offsets = np.array([0.002, -0.001, 0.0015, -0.003, 0.0, 0.001])
+    seen = origin + body @ rotation.T + offsets.reshape(2, 3)
+    outcome = fusion.update_markers(0.0, seen, body)
+    assert outcome.markers_used == 2
+    arms = (body - lever) @ rotation.T
+    blocks = np.vstack([skew(arm) for arm in arms])
+    R = 1e-6 * np.eye(6) + 0.01 ** 2 * blocks @ blocks.T
+    H = np.tile(np.hstack([np.eye(3), np.zeros((3, 6))]), (2, 1))
+    predicted = np.concatenate([x0[:3] + arm for arm in arms])
+    S = H @ P0 @ H.T + R
+    K = P0 @ H.T @ np.linalg.inv(S)
+    np.testing.assert_allclose(fusion.x, x0 + K @ (seen.ravel() - predicted), atol=1e-12)
+    np.testing.assert_allclose(fusion.P, (np.eye(9) - K @ H) @ P0, atol=1e-15)
+
+
 def test_a_shared_orientation_error_is_counted_once_per_run(monkeypatch):
     """The k-th frame fused with the gyroscope's orientation since the last orientation fix
     takes k sigma_o^2 (online); offline, every frame of a run of K takes K sigma_o^2. With
