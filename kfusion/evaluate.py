@@ -16,6 +16,7 @@ Definitions used in every table kfusion prints:
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -24,7 +25,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from kfusion.conventions import LOST
-from kfusion.recording import MocapFrames, Recording, occlusion_runs
+from kfusion.recording import MarkerFrames, MocapFrames, Recording, occlusion_runs
 from kfusion.track_file import TrackResult
 
 
@@ -100,6 +101,11 @@ def cut_gaps(
     position = np.where(gap_mask[:, None], np.nan, mocap.position)
     quaternion = np.where(gap_mask[:, None], np.nan, mocap.quaternion)
     gapped = recording.with_mocap(MocapFrames(t=t, position=position, quaternion=quaternion))
+    markers = recording.markers
+    if markers is not None and np.array_equal(markers.t, t):  # a cut gap hides every marker
+        gapped = dataclasses.replace(gapped, markers=MarkerFrames(
+            t=markers.t, names=markers.names,
+            position=np.where(gap_mask[:, None, None], np.nan, markers.position)))
     truth = np.where(visible[:, None], mocap.position, np.nan)
     return GappedRecording(recording=gapped, truth_position=truth, gap_mask=gap_mask)
 

@@ -276,6 +276,9 @@ class Health:
         time_rebases: times consistent samples showed the clock really jumped (or the newest
             time was itself a glitch) and the streams restarted from the new time
             (:class:`kfusion.streamhealth.TimeGuard`).
+        markers_used: markers fused from :meth:`Tracker.push_markers` frames.
+        markers_rejected: visible markers rejected one by one by their own gate (a frame
+            whose every visible marker was rejected also counts in ``gate_rejections``).
     """
 
     imu_pushed: int
@@ -300,6 +303,8 @@ class Health:
     resets: int
     orientation_gated: int = 0
     time_rebases: int = 0
+    markers_used: int = 0
+    markers_rejected: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         """Plain nested dict (for logging or YAML/JSON)."""
@@ -625,6 +630,17 @@ class _KalmanEstimator:
         self.monitor.mocap(t, position, outcome, self._fusion, prior)
         return _KALMAN_OUTCOMES[outcome.kind]
 
+    def update_markers(self, t: float, observed: NDArray, body: NDArray
+                       ) -> tuple[str, int, int]:
+        """Fuse a marker frame (:meth:`KalmanFusion.update_markers`); (reason, markers used,
+        markers rejected). The monitor sees the markers' Kabsch origin as the frame's fix."""
+        prior = self._fusion.estimate(t) if self.monitor.has_gated_fix else None
+        outcome = self._fusion.update_markers(t, observed, body)
+        origin = outcome.marker_origin
+        self.monitor.mocap(t, None if origin is None else np.array(origin), outcome,
+                           self._fusion, prior)
+        return _KALMAN_OUTCOMES[outcome.kind], outcome.markers_used, outcome.markers_gated
+
     def read(self, t: float) -> _Reading | None:
         if not self._fusion.initialised:
             return None
@@ -694,6 +710,8 @@ class _Counts:
     longest_gap_s: float = 0.0
     lost_transitions: int = 0
     state_resets: int = 0
+    markers_used: int = 0
+    markers_rejected: int = 0
 
 
 @dataclass
@@ -772,6 +790,8 @@ class Tracker:
             pass the IMU's "now": it is ``imu_time_offset`` away from the mocap's. With it,
             :meth:`estimate` without ``t`` is the estimate now; without it, :meth:`estimate`
             needs ``t`` (an estimate is never presented as current when it is old).
+        markers: ``{NAME: [bx, by, bz]}``, each marker's position in the body frame, m
+            (``recording.yaml``'s ``markers``): needed by :meth:`push_markers` (Kalman only).
 
     Thread safety: every public method holds the tracker's lock, and :meth:`estimate` and
     :attr:`health` do not change the state, so one thread may push while others read.
@@ -793,6 +813,7 @@ class Tracker:
         imu_time_offset: float = 0.0,
         imu_clock_drift_ppm: float = 0.0,
         clock: Callable[[], float] | None = None,
+        markers: Mapping[str, ArrayLike] | None = None,
     ) -> None:
         self.imu_clock = check_clock(imu_time_offset, imu_clock_drift_ppm, "Tracker")
         self._imu_clock_mapped = self.imu_clock != (0.0, 0.0)
@@ -833,6 +854,7 @@ class Tracker:
         self._imu_to_body = q_body_imu / norm
         self._gravity = gravity_vector
         self._lever_arm = lever
+        self._marker_names, self._marker_body = _marker_body(markers)
         self._estimator = self._new_estimator()
         self.max_bridge_s = self._estimator.max_bridge_s
         if options.fix_timeout_s > self.max_bridge_s:
@@ -872,6 +894,7 @@ class Tracker:
         kwargs.setdefault("imu_clock_drift_ppm", info.imu_clock_drift_ppm)
         if kwargs.get("method", "kalman") == "kalman":
             kwargs.setdefault("lever_arm", info.lever_arm)
+            kwargs.setdefault("markers", info.markers)
         return cls(info.imu_to_body, info.gravity, **kwargs)
 
     @classmethod
@@ -880,7 +903,8 @@ class Tracker:
         ``method``, ``imu``, ``lever_arm``, ``parameters`` (the method's fields),
         ``tracker`` (:class:`TrackerOptions` fields) and ``recording.yaml``'s clock model and
         measured noise (``imu_time_offset``, ``imu_clock_drift_ppm``, ``imu_noise``: they
-        mean what they mean there). ValueError names ``source`` and any unknown key."""
+        mean what they mean there) and its ``markers`` (for :meth:`push_markers`). ValueError
+        names ``source`` and any unknown key."""
         if not isinstance(mapping, Mapping):
             raise ValueError(f"{source}: expected a mapping with keys {list(CONFIG_KEYS)}, got "
                              f"{type(mapping).__name__}")
@@ -907,7 +931,7 @@ class Tracker:
             imu, ImuProfile) else imu
         # the clock and noise keys as recording.yaml defines them, read by its own parser
         info = parse_info({key: mapping[key] for key in
-                           ("imu_time_offset", "imu_clock_drift_ppm", "imu_noise")
+                           ("imu_time_offset", "imu_clock_drift_ppm", "imu_noise", "markers")
                            if key in mapping}, source, require_mount=False)
         if info.imu_noise is not None:
             profile = dataclasses.replace(profile, **info.imu_noise.overrides())
@@ -919,15 +943,16 @@ class Tracker:
             return cls(mapping["imu_to_body"], mapping["gravity"], method=method, imu=profile,
                        params=params, lever_arm=mapping.get("lever_arm"), options=options,
                        imu_time_offset=info.imu_time_offset,
-                       imu_clock_drift_ppm=info.imu_clock_drift_ppm)
+                       imu_clock_drift_ppm=info.imu_clock_drift_ppm,
+                       markers=info.markers if method == "kalman" else None)
         except ValueError as error:
             raise ValueError(f"{source}: {error}") from None
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Tracker:
         """A tracker from a YAML file (schema of :meth:`from_mapping`), such as a recording's
-        ``recording.yaml``: its ``name`` (a label) and ``markers`` (used by converters, not by the
-        Tracker yet) keys are ignored."""
+        ``recording.yaml``: its ``name`` (a label) is ignored, its ``markers`` (body-frame
+        positions) serve :meth:`push_markers`."""
         path = Path(path)
         if not path.is_file():
             raise ValueError(f"{path}: file not found")
@@ -937,7 +962,7 @@ class Tracker:
             reason = f"not valid YAML ({error.reason})" if error.syntax else error.reason
             raise ValueError(f"{path}: {reason}") from None
         if isinstance(data, dict):
-            data = {key: value for key, value in data.items() if key not in ("name", "markers")}
+            data = {key: value for key, value in data.items() if key != "name"}
         return cls.from_mapping(data, source=str(path))
 
     def _new_estimator(self) -> _Estimator:
@@ -1050,6 +1075,57 @@ class Tracker:
         return PushOutcome(reason in (ACCEPTED, REACQUIRED), reason)
 
     @_locked
+    def push_markers(self, t: float, markers: Mapping[str, ArrayLike | None]) -> PushOutcome:
+        """Feed one frame of individual markers (marker-level fusion, Kalman only).
+
+        Each visible marker is a measurement of the body (``z_i = p + R m_i`` with m_i from the
+        ``markers`` given to the constructor), so 1 or 2 visible markers still fix the
+        position; 3 or more also give the orientation. Each marker is gated alone: a swapped
+        marker is rejected (``health.markers_rejected``) while the others are fused. The frame
+        takes a mocap frame's place in the fusion order (the mocap stream: push either
+        ``push_mocap`` or ``push_markers`` at a time t, not both).
+
+        Args:
+            t: frame time, s (mocap clock).
+            markers: ``{NAME: (3,) global position in m, or None}``; None, a NaN, or a name
+                left out: that marker is occluded.
+
+        Returns:
+            :class:`PushOutcome`: ``accepted``/``reacquired`` when a marker was fused,
+            ``occluded`` (no marker seen, or fewer than 3 before the first fix), ``gated``
+            (every visible marker rejected), or a rejection (``non_finite`` for an inf,
+            ``out_of_order``, ``duplicate``, ``too_late``, ``implausible_time``).
+
+        Raises:
+            ValueError: method ``baseline``, a tracker built without ``markers``, ``markers``
+                not a mapping, an unknown marker name, or a value that is not None or 3 numbers
+                (naming the marker).
+        """
+        t = _time("push_markers", t)
+        if self.method != "kalman" or self._marker_body is None:
+            raise ValueError("push_markers: expected a Kalman tracker built with markers={NAME: "
+                             "[bx, by, bz]} (or from a recording.yaml with markers:), got "
+                             + (f"method {self.method!r}" if self.method != "kalman"
+                                else "no markers"))
+        observed = _marker_frame(markers, self._marker_names)
+        stream = self._mocap
+        stream.pushed += 1
+        if not math.isfinite(t) or np.isinf(observed).any():
+            return self._reject(stream, NON_FINITE)
+        if self._implausible(t, MOCAP_STREAM):
+            return self._reject(stream, IMPLAUSIBLE_TIME)
+        values = (observed, np.full(4, np.nan))  # no rigid-body orientation
+        if t <= stream.last_t:
+            return self._order_rejection(stream, t, values)
+        reason = self._fuse((t, MOCAP_STREAM, observed, None, False, t, _MARKER_FRAME))
+        if reason is None:
+            return self._reject(stream, TOO_LATE)
+        stream.last_t, stream.last_values = t, values
+        stream.accepted += 1
+        self._watch.mocap(t)
+        return PushOutcome(reason in (ACCEPTED, REACQUIRED), reason)
+
+    @_locked
     def estimate(self, t: float | None = None) -> Estimate:
         """The estimate at ``t``, the caller's current time in s on the stamps' clock.
 
@@ -1150,7 +1226,8 @@ class Tracker:
             longest_gap_s=gap, lost_transitions=counts.lost_transitions,
             state_resets=counts.state_resets, replays=self._replays, resets=self._resets,
             orientation_gated=self._estimator.orientation_gated(),
-            time_rebases=self._guard.rebases,
+            time_rebases=self._guard.rebases, markers_used=counts.markers_used,
+            markers_rejected=counts.markers_rejected,
         )
 
     @_locked
@@ -1213,7 +1290,9 @@ class Tracker:
     def _configuration(self) -> tuple:
         return (self.method, repr(self.params), self.imu_profile, self.options,
                 tuple(self._imu_to_body), tuple(self._gravity),
-                None if self._lever_arm is None else tuple(self._lever_arm))
+                None if self._lever_arm is None else tuple(self._lever_arm),
+                self._marker_names, None if self._marker_body is None
+                else tuple(self._marker_body.ravel().tolist()))
 
     def _start_streams(self, *, keep_counters: bool) -> None:
         """Empty stream history, bookkeeping, event log and checkpoints (counters optional)."""
@@ -1423,6 +1502,14 @@ class Tracker:
         if event[1] == IMU_STREAM:
             self._estimator.predict(event[5], event[2], event[3])  # its stamp
             return ACCEPTED
+        if event[-1] is _MARKER_FRAME:  # push_markers (a Kalman tracker with markers)
+            assert isinstance(self._estimator, _KalmanEstimator)
+            assert self._marker_body is not None
+            reason, used, rejected = self._estimator.update_markers(event[0], event[2],
+                                                                    self._marker_body)
+            self._book.counts.markers_used += used
+            self._book.counts.markers_rejected += rejected
+            return reason
         position, quaternion = event[2], event[3]
         return self._estimator.update(event[0], None if math.isnan(position[0]) else position,
                                       None if math.isnan(quaternion[0]) else quaternion)
@@ -1492,7 +1579,7 @@ class Tracker:
 
 
 CONFIG_KEYS: Final = ("imu_to_body", "gravity", "method", "imu", "lever_arm", "parameters",
-                      "tracker", "imu_time_offset", "imu_clock_drift_ppm", "imu_noise")
+                      "tracker", "imu_time_offset", "imu_clock_drift_ppm", "imu_noise", "markers")
 """Keys of a tracker YAML file (:meth:`Tracker.from_yaml`)."""
 
 
@@ -1529,3 +1616,43 @@ def _finite_reading(reading: _Reading, has_covariance: bool) -> bool:
         return False
     return not has_covariance or bool(np.isfinite(reading.covariance).all())
 
+
+
+_MARKER_FRAME: Final = "markers"
+"""Last item of a :meth:`Tracker.push_markers` event (a mocap-stream event of its own kind)."""
+
+
+def _marker_body(markers: Mapping[str, ArrayLike] | None
+                 ) -> tuple[tuple[str, ...], NDArray[np.float64] | None]:
+    """Names and body-frame positions (n, 3) m of the constructor's ``markers``; ValueError
+    naming a bad entry."""
+    if markers is None:
+        return (), None
+    if not isinstance(markers, Mapping) or not markers:
+        raise ValueError(f"Tracker: markers: expected a mapping NAME -> [bx, by, bz] (m), got "
+                         f"{short_repr(markers)}")
+    names = tuple(str(name) for name in markers)
+    body = np.array([_vector("Tracker", f"markers[{name!r}]", markers[name], 3, "m")
+                     for name in markers])
+    if not np.isfinite(body).all():
+        bad = names[int(np.flatnonzero(~np.isfinite(body).all(axis=1))[0])]
+        raise ValueError(f"Tracker: markers[{bad!r}]: expected 3 finite numbers (m)")
+    body.flags.writeable = False
+    return names, body
+
+
+def _marker_frame(markers: object, names: tuple[str, ...]) -> NDArray[np.float64]:
+    """A push_markers frame as (n, 3) m in the constructor's marker order, NaN where a marker
+    is None, NaN or left out; ValueError naming an unknown marker or a malformed value."""
+    if not isinstance(markers, Mapping):
+        raise ValueError(f"push_markers: markers: expected a mapping NAME -> (3,) position in m "
+                         f"or None, got {type(markers).__name__}")
+    observed = np.full((len(names), 3), np.nan)
+    index = {name: i for i, name in enumerate(names)}
+    for name, value in markers.items():
+        if name not in index:
+            raise ValueError(f"push_markers: unknown marker {short_repr(name)}; expected names "
+                             f"from {list(names)}")
+        if value is not None:
+            observed[index[name]] = _vector("push_markers", f"markers[{name!r}]", value, 3, "m")
+    return observed

@@ -7,7 +7,14 @@ import argparse
 import numpy as np
 
 from kfusion.recording import occlusion_durations
-from kfusion.simulate import PLACEMENTS, SCENARIOS, OcclusionSpec, simulate, write_simulation
+from kfusion.simulate import (
+    PLACEMENTS,
+    SCENARIOS,
+    MarkerSpec,
+    OcclusionSpec,
+    simulate,
+    write_simulation,
+)
 
 NAME = "simulate"
 HELP = "Simulate a forearm scenario and write a recording folder plus truth.csv."
@@ -31,6 +38,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "direction_change (Type 2, where the arm turns round) (default: random)")
     parser.add_argument("--spacing", type=float, default=1.5, metavar="S",
                         help="visible mocap required before each occlusion, s (default: 1.5)")
+    parser.add_argument("--markers", action="store_true",
+                        help="simulate a 4-marker cluster: occlusions hide some of its markers "
+                        "(most one or two), markers.csv and recording.yaml markers: are written "
+                        "and mocap.csv is the rigid body where 3 or more markers are seen")
+    parser.add_argument("--c3d", metavar="FILE.c3d", default=None,
+                        help="with --markers: also write the simulated markers as a C3D file "
+                        "(needs ezc3d)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="length of the simulation, s (default: the scenario's, 30-45 s)")
 
@@ -38,10 +52,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     spec = OcclusionSpec(gap_range=(args.gap_min, args.gap_max), placement=args.placement,
                          spacing=args.spacing)
+    if args.c3d is not None and not args.markers:
+        raise ValueError("--c3d: expected --markers too (a C3D file holds markers)")
     simulation = simulate(args.scenario, seed=args.seed, imu=args.imu, occlusions=spec,
-                          duration=args.duration)
+                          duration=args.duration, markers=MarkerSpec() if args.markers else None)
     folder = write_simulation(simulation, args.out)
     recording = simulation.recording
+    if recording.markers is not None:
+        visible = recording.markers.visible.sum(axis=1)
+        counts = ", ".join(f"{int(np.sum(visible == k))} with {k}" for k in range(
+            recording.markers.visible.shape[1]))
+        print(f"markers: {', '.join(recording.markers.names)}; frames with fewer than all "
+              f"markers seen: {counts}")
+        if args.c3d is not None:
+            from kfusion.readers.c3d import write_c3d_markers
+
+            print(f"wrote {write_c3d_markers(args.c3d, recording.markers)}")
     durations = occlusion_durations(recording.mocap.t, recording.mocap.visible)
     print(f"wrote {folder}: {args.scenario} seed {args.seed}, {recording.imu.t[-1]:.1f} s, "
           f"{len(recording.imu)} IMU samples ({recording.info.imu}), {len(recording.mocap)} "

@@ -12,7 +12,7 @@ from kfusion.config import check_methods
 from kfusion.conventions import STATUSES
 from kfusion.guards import YamlError, load_yaml_text, short_repr
 from kfusion.methods import METHODS, track_with_method
-from kfusion.recording import read_recording
+from kfusion.recording import Recording, read_recording
 from kfusion.track_file import write_track_csv
 
 NAME = "track"
@@ -48,6 +48,28 @@ def parse_options(pairs: list[str] | None, method: str | None = None) -> dict[st
     return converted[method]
 
 
+MARKER_METHODS = ("kalman", "smoother")
+"""Methods with marker-level fusion (``--measurement markers``)."""
+
+
+def measurement_mode(recording: Recording, method: str, requested: str | None) -> str:
+    """``--measurement``: as requested, or by default ``markers`` when the recording has them
+    and the method fuses them (:func:`kfusion.kalman.batch.default_measurement`), else
+    ``body``. ValueError for markers the method or the folder cannot give."""
+    from kfusion.kalman.batch import BODY, MARKERS, default_measurement  # on use: filterpy
+
+    if requested is None:
+        return default_measurement(recording) if method in MARKER_METHODS else BODY
+    if requested == MARKERS:
+        if method not in MARKER_METHODS:
+            raise ValueError(f"--measurement markers: method {method!r} fuses rigid bodies "
+                             f"only; expected one of {list(MARKER_METHODS)}")
+        if default_measurement(recording) != MARKERS:
+            raise ValueError(f"--measurement markers: {recording.source or 'the folder'} needs "
+                             "markers.csv and a markers: section in recording.yaml")
+    return requested
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("folder", metavar="DIR", help="recording folder")
     parser.add_argument("--method", choices=sorted(METHODS), default="kalman",
@@ -57,6 +79,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set", action="append", metavar="KEY=VALUE", dest="options",
                         help="override one of the method's parameters (repeatable), "
                         "e.g. --set max_bridge_s=0.5")
+    parser.add_argument("--measurement", choices=("markers", "body"), default=None,
+                        help="kalman and smoother: fuse each visible marker of markers.csv "
+                        "(markers) or the rigid body of mocap.csv (body) (default: markers when "
+                        "the folder has markers.csv and recording.yaml has markers:, else body)")
     parser.add_argument("--zeros-occluded", action="store_true",
                         help="read a mocap position of exactly (0, 0, 0) as occluded")
     parser.add_argument("--force", action="store_true",
@@ -73,9 +99,13 @@ def run(args: argparse.Namespace) -> int:
     if not diagnosis.ok and not args.force:
         shifted = f" with imu_latency_s = {latency:g} s" if latency else ""
         raise ValueError(f"{args.folder}{shifted}: {diagnosis.problems[0]} (or pass --force)")
+    measurement = measurement_mode(recording, args.method, args.measurement)
+    if args.method in MARKER_METHODS:
+        options["measurement"] = measurement
     result = track_with_method(recording, args.method, **options)
     path = write_track_csv(result, args.out)
     counts = {status: int(np.sum(result.status == status)) for status in STATUSES}
     summary = ", ".join(f"{count} {status}" for status, count in counts.items())
-    print(f"{args.method}: wrote {len(result)} rows to {path} ({summary})")
+    print(f"{args.method}: wrote {len(result)} rows to {path} ({summary}; measurement: "
+          f"{measurement})")
     return 0

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from kfusion.conventions import BRIDGED, LOST
 from kfusion.kalman.events import IMU_STREAM, merge_events
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
+from kfusion.kalman.markers import shared_run_lengths
 from kfusion.kalman.model import output_covariance, output_point
 from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
 from kfusion.monitor import ConsistencyMonitor, MonitorParameters, MonitorReport
@@ -61,9 +62,44 @@ def make_monitor(recording: Recording, params: KalmanParameters,
     return ConsistencyMonitor(make_fusion(recording, params), monitor, recording.info.gravity)
 
 
+BODY = "body"
+"""Measurement mode: each mocap row's rigid-body pose (``mocap.csv``) is one fix."""
+MARKERS = "markers"
+"""Measurement mode: each visible marker of ``markers.csv`` is a measurement
+(:meth:`KalmanFusion.update_markers`)."""
+MEASUREMENTS = (BODY, MARKERS)
+
+
+def default_measurement(recording: Recording) -> str:
+    """``markers`` when the recording has ``markers.csv`` and ``recording.yaml``'s ``markers``,
+    else ``body``."""
+    has_markers = recording.markers is not None and recording.info.markers is not None
+    return MARKERS if has_markers else BODY
+
+
+def marker_inputs(recording: Recording) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The markers seen at each mocap row (m, n, 3) m (NaN where occluded) and their body-frame
+    positions (n, 3) m, for ``--measurement markers``.
+
+    Raises:
+        ValueError: no ``markers.csv`` or no ``markers`` in ``recording.yaml``, or marker frames
+            at other times than the mocap rows.
+    """
+    markers, body = recording.markers, recording.info.markers
+    if markers is None or body is None:
+        raise ValueError("measurement 'markers': expected markers.csv and a markers: section "
+                         "in recording.yaml; use measurement 'body'")
+    if not np.array_equal(markers.t, recording.mocap.t):
+        raise ValueError(f"markers.csv: expected the times of mocap.csv ({len(recording.mocap)} "
+                         f"rows), got {len(markers)} rows at other times")
+    return (np.asarray(markers.position, dtype=float),
+            np.array([body[name] for name in markers.names], dtype=float))
+
+
 def process_recording(recording: Recording, fusion: KalmanFusion,
                       on_row: Callable[[int, UpdateOutcome], None],
-                      monitor: ConsistencyMonitor | None = None) -> None:
+                      monitor: ConsistencyMonitor | None = None,
+                      measurement: str = BODY, offline: bool = False) -> None:
     """Feed every IMU sample and mocap row to ``fusion`` in the fusion order
     (:func:`kfusion.kalman.events.merge_events`: by time on the mocap clock, an IMU sample at its
     stamp minus ``imu_latency_s``, the IMU sample first at equal times) and call
@@ -72,7 +108,18 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
     filter).
 
     The recording's clock model is applied here (:func:`kfusion.recording.on_mocap_clock`), so
-    every batch path (``filter_recording``, ``run_smoother``, ``kfusion track``) uses it."""
+    every batch path (``filter_recording``, ``run_smoother``, ``kfusion track``) uses it.
+
+    ``measurement``: ``body`` fuses each row's rigid-body pose, ``markers`` each row's visible
+    markers (:func:`marker_inputs`; the monitor then sees the markers' Kabsch pose, where 3 or
+    more fit). ``offline`` (the smoother): each marker frame is told how many frames share its
+    gyroscope orientation error (``shared_frames`` of :meth:`KalmanFusion.update_markers`)."""
+    if measurement not in MEASUREMENTS:
+        raise ValueError(f"measurement: expected one of {list(MEASUREMENTS)}, got "
+                         f"{measurement!r}")
+    observed, body = marker_inputs(recording) if measurement == MARKERS else (None, None)
+    shared = (shared_run_lengths(np.isfinite(observed).all(axis=2).sum(axis=1)).tolist()
+              if observed is not None and offline else None)
     recording = on_mocap_clock(recording)
     imu = recording.imu
     mocap = recording.mocap
@@ -96,8 +143,18 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
             if monitor is not None:
                 monitor.imu(stamp, accelerometer[index], gyroscope[index])
             continue
-        position = mocap.position[index].copy() if visible[index] else None
         prior = fusion.estimate(t) if monitor is not None and monitor.has_gated_fix else None
+        if observed is not None and body is not None:
+            outcome = fusion.update_markers(
+                t, observed[index], body,
+                shared_frames=None if shared is None else shared[index] or None)
+            if monitor is not None:
+                origin = outcome.marker_origin
+                monitor.mocap(t, None if origin is None else np.array(origin), outcome, fusion,
+                              prior)
+            on_row(index, outcome)
+            continue
+        position = mocap.position[index].copy() if visible[index] else None
         if position is not None:
             outcome = fusion._update_valid(t, position, mocap.quaternion[index].copy())
         else:
@@ -305,16 +362,17 @@ class _RowRecorder:
 
 def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
                monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008 (frozen)
-               **overrides: Any) -> FilterRun:
+               measurement: str = BODY, **overrides: Any) -> FilterRun:
     """Run :class:`KalmanFusion` over ``recording`` and keep its per-row states and outcomes.
 
     ``monitor``: the consistency monitor's settings (:mod:`kfusion.monitor`); None runs the
-    filter alone (the bound is then the profile's)."""
+    filter alone (the bound is then the profile's). ``measurement``: ``body`` or ``markers``
+    (:func:`process_recording`)."""
     params = resolve_parameters(recording, params, overrides)
     fusion = make_fusion(recording, params)
     watcher = make_monitor(recording, params, monitor)
     recorder = _RowRecorder(fusion, len(recording.mocap), watcher)
-    process_recording(recording, fusion, recorder.record, watcher)
+    process_recording(recording, fusion, recorder.record, watcher, measurement)
     status, since = status_from_fixes(recording.mocap.t, recorder.fixed, recorder.initialised,
                                       params.max_bridge_s, recorder.dead_reckoned)
     position, variance = point_estimates(recorder.x, recorder.P, recorder.output_matrix,
@@ -341,7 +399,7 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
 
 def filter_recording(recording: Recording, params: KalmanParameters | None = None, *,
                      monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008
-                     **overrides: Any) -> TrackResult:
+                     measurement: str = BODY, **overrides: Any) -> TrackResult:
     """Method ``kalman``: the streaming filter's estimate at every mocap row.
 
     Args:
@@ -349,6 +407,7 @@ def filter_recording(recording: Recording, params: KalmanParameters | None = Non
         params: parameters; None builds them from ``recording.info.imu`` (see
             :meth:`KalmanParameters.from_profiles`).
         monitor: consistency monitor settings (None: off).
+        measurement: ``body`` (rigid-body fixes) or ``markers`` (marker-level fusion).
         overrides: parameter fields to replace (e.g. ``max_bridge_s=0.5``).
 
     Returns:
@@ -356,4 +415,5 @@ def filter_recording(recording: Recording, params: KalmanParameters | None = Non
         the monitor in gaps (m), status tracked/bridged/lost and time since the last accepted
         fix (s).
     """
-    return run_filter(recording, params, monitor=monitor, **overrides).result
+    return run_filter(recording, params, monitor=monitor, measurement=measurement,
+                      **overrides).result

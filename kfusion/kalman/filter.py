@@ -99,6 +99,16 @@ from kfusion.conventions import LOST, QUATERNION_NORM_TOLERANCE
 from kfusion.guards import refuse_masked
 from kfusion.kalman import model
 from kfusion.kalman.events import imu_event_time
+from kfusion.kalman.markers import (
+    common_error_variance,
+    fit_angle_variance,
+    marker_arms,
+    marker_gate,
+    marker_nis,
+    marker_noise,
+    marker_pose,
+    stacked_measurement,
+)
 from kfusion.kalman.orientation import (
     OrientationState,
     OrientationTracker,
@@ -137,7 +147,7 @@ COUNTER_NAMES: Final = (
     "predictions", "imu_rejected", "imu_duplicates", "imu_dropouts", "imu_late",
     "accelerometer_saturated", "gyroscope_saturated",
     "updates", "occluded", "gated", "reacquired", "initialised", "no_orientation", "resets",
-    "imu_outages", "orientation_gated",
+    "imu_outages", "orientation_gated", "markers_used", "markers_gated",
 )
 """Keys of :attr:`KalmanFusion.counters`. ``updates`` counts every fix fused (accepted,
 reacquired and initialised); ``no_orientation`` counts fixes without a quaternion before the
@@ -146,7 +156,10 @@ orientation was known (treated as occluded); ``imu_dropouts`` intervals longer t
 overflowed (the state is then forgotten and re-initialised by the next fix); ``imu_rejected``
 samples with NaN, inf or a value beyond :data:`kfusion.kalman.model.IMPLAUSIBLE_SAMPLE`;
 ``imu_outages`` intervals propagated without IMU (:mod:`kfusion.streamhealth`);
-``orientation_gated`` fixes whose orientation failed the gyroscope gate (position still used)."""
+``orientation_gated`` fixes whose orientation failed the gyroscope gate (position still used);
+``markers_used`` and ``markers_gated`` markers fused and rejected one by one by
+:meth:`KalmanFusion.update_markers` (a frame counts in ``updates`` when one of its markers was
+fused, in ``gated`` when all its visible markers were rejected)."""
 
 Vector3 = tuple[float, float, float]
 
@@ -159,12 +172,22 @@ class UpdateOutcome:
         t: frame time, s.
         kind: one of accepted, occluded, gated, reacquired, initialised.
         nis: normalised innovation squared ``y^T S^-1 y`` (3 dof) before fusing; NaN when there
-            was nothing to compare (occluded, initialised).
+            was nothing to compare (occluded, initialised). For k markers fused together
+            (:meth:`KalmanFusion.update_markers`) the stacked NIS (3k dof) divided by k, so that
+            its expectation is 3 as for a rigid-body fix.
+        markers_used: markers fused from this frame (marker-level fusion; 0 otherwise).
+        markers_gated: visible markers of this frame rejected by their own gate.
+        marker_origin: the rigid-body origin (m, global frame) solved from this frame's markers
+            when 3 or more fitted (Kabsch), else None: the fix a rigid-body consumer (the
+            consistency monitor) compares with.
     """
 
     t: float
     kind: str
     nis: float
+    markers_used: int = 0
+    markers_gated: int = 0
+    marker_origin: tuple[float, float, float] | None = None
 
     @property
     def accepted(self) -> bool:
@@ -230,6 +253,7 @@ class KalmanSnapshot:
     last_orientation_fix: float | None = None
     imu_interval: float | None = None
     last_frame_fused: bool = False
+    frames_on_gyroscope: int = 0
 
 
 def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
@@ -320,6 +344,9 @@ class KalmanFusion:
         self._outage_since_fix = False  # an interval without IMU since the last fix
         self._imu_interval: float | None = None  # the last interval between IMU samples, s
         self._last_orientation_fix: float | None = None
+        # marker frames fused with the gyroscope's orientation since the last orientation fix
+        # (:meth:`update_markers`: their orientation errors are one and the same)
+        self._frames_on_gyroscope = 0
         self._counters = dict.fromkeys(COUNTER_NAMES, 0)
         # smoother support (see kfusion.kalman.smoother): product of the transitions since the
         # smoother last reset it, and the prior of the last fused fix
@@ -424,12 +451,7 @@ class KalmanFusion:
             lost): then it is accepted as a re-acquisition (after inflating the position
             and velocity covariance if it would have failed the gate).
         """
-        t = float(t)
-        if not math.isfinite(t):
-            raise ValueError(f"update: expected a finite time in s, got {t!r}")
-        if self._time is not None and t < self._time:
-            raise ValueError(f"update: timestamp {t!r} s is before the filter's time "
-                             f"({self._time!r} s); expected events in time order")
+        t = self._frame_time(t, "update")
         z = None if position is None else _vector(position, 3, "position")
         q_global_body = None if quaternion is None else _vector(quaternion, 4, "quaternion")
         if z is not None and not np.isfinite(z).all():
@@ -439,6 +461,65 @@ class KalmanFusion:
             if not math.isfinite(norm) or abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
                 q_global_body = None  # not a unit quaternion: a position-only fix
         return self._update_valid(t, z, q_global_body)
+
+    def update_markers(self, t: float, observed: ArrayLike, body_positions: ArrayLike, *,
+                       shared_frames: int | None = None) -> UpdateOutcome:
+        """Advance to t (s) holding the last IMU sample, then fuse a frame of individual markers
+        (marker-level fusion, :mod:`kfusion.kalman.markers`).
+
+        Each visible marker is a measurement ``z_i = p_body + R_global_body m_i``. With 3 or
+        more visible (and not collinear, and fitting the cluster within
+        :data:`kfusion.rigid_body.DEFAULT_MAX_RESIDUAL`) their Kabsch pose gives the
+        orientation, gated against the gyroscope as a rigid body's is; otherwise the orientation
+        is the gyroscope-propagated one, and its angle variance enters each marker's noise.
+        Each marker is gated alone (chi-square(3) at ``gate_probability`` and beyond
+        ``gate_min_innovation``, while the prediction is valid), and the markers that pass are
+        fused together with their correlated noise (:func:`kfusion.kalman.markers.
+        marker_noise`). The first fix needs 3 markers (the orientation and position are
+        initialised from their pose).
+
+        Args:
+            t: frame time, s; not before the state's time.
+            observed: (k, 3) global marker positions, m; a row with any NaN or inf is occluded.
+            body_positions: (k, 3) the same markers in the body frame, m (finite).
+            shared_frames: offline only: how many frames share this frame's gyroscope
+                orientation error (the run of frames with fewer than 3 markers it belongs to),
+                so that each counts it ``shared_frames`` times and any combination of them (a
+                smoother's) stays covered; None (online): the frames fused with it so far
+                (:func:`kfusion.kalman.markers.common_error_variance`).
+
+        Returns:
+            :class:`UpdateOutcome` with ``markers_used`` and ``markers_gated``: ``occluded``
+            (no marker, or fewer than 3 before the orientation is known), ``gated`` (every
+            visible marker rejected), else ``accepted``, ``reacquired`` or ``initialised``.
+
+        Raises:
+            ValueError: shapes other than (k, 3), non-finite body positions, a non-finite t or
+                a t before the state's time.
+        """
+        t = self._frame_time(t, "update_markers")
+        refuse_masked("observed", observed)
+        refuse_masked("body_positions", body_positions)
+        seen = np.asarray(observed, dtype=float)
+        body = np.asarray(body_positions, dtype=float)
+        if seen.ndim != 2 or seen.shape[1:] != (3,) or body.shape != seen.shape:
+            raise ValueError(f"update_markers: expected observed and body_positions of one "
+                             f"shape (k, 3), got {seen.shape} and {body.shape}")
+        if not np.isfinite(body).all():
+            raise ValueError("update_markers: body_positions: expected finite numbers (m)")
+        visible = np.isfinite(seen).all(axis=1)
+        return self._update_markers_valid(t, seen[visible], body[visible], shared_frames)
+
+    def _frame_time(self, t: float, where: str) -> float:
+        """A mocap frame's time as a float: ValueError (naming ``where``) unless finite and not
+        before the state's time."""
+        t = float(t)
+        if not math.isfinite(t):
+            raise ValueError(f"{where}: expected a finite time in s, got {t!r}")
+        if self._time is not None and t < self._time:
+            raise ValueError(f"{where}: timestamp {t!r} s is before the filter's time "
+                             f"({self._time!r} s); expected events in time order")
+        return t
 
     def estimate(self, t: float | None = None) -> FilterEstimate:
         """The estimate at t (s; default: the state's time). A later t extrapolates holding the
@@ -497,6 +578,7 @@ class KalmanFusion:
             last_orientation_fix=self._last_orientation_fix,
             imu_interval=self._imu_interval,
             last_frame_fused=self._last_frame_fused,
+            frames_on_gyroscope=self._frames_on_gyroscope,
         )
 
     def restore(self, snapshot: KalmanSnapshot) -> None:
@@ -527,6 +609,7 @@ class KalmanFusion:
         self._last_orientation_fix = snapshot.last_orientation_fix
         self._imu_interval = snapshot.imu_interval
         self._last_frame_fused = snapshot.last_frame_fused
+        self._frames_on_gyroscope = snapshot.frames_on_gyroscope
 
     # ------------------------------------------------------------------ internals
 
@@ -737,11 +820,7 @@ class KalmanFusion:
         if since >= self.params.reacquire_after_s:
             kind = REACQUIRED
             if nis > self._gate:
-                position_variance, velocity_variance = model.reacquisition_inflation(y, since)
-                P = P.copy()
-                P[model.POSITION, model.POSITION] += position_variance * np.eye(3)
-                P[model.VELOCITY, model.VELOCITY] += velocity_variance * np.eye(3)
-                self._kf.P = P
+                self._inflate_for_reacquisition(y, since)
         if self._interval is not None:
             self._prior = (np.array(self._kf.x, dtype=float), np.array(self._kf.P, dtype=float))
         self._kf.update(z - offset, H=H)
@@ -750,10 +829,130 @@ class KalmanFusion:
             self._orientation.correct(q_global_imu)
             self._R_current = None
             self._last_orientation_fix = t
+            self._frames_on_gyroscope = 0
         self._mark_fix(t)
         if kind == REACQUIRED:
             self._counters["reacquired"] += 1
         return UpdateOutcome(t, kind, nis)
+
+    def _update_markers_valid(self, t: float, points: NDArray[np.float64],
+                              body: NDArray[np.float64], shared_frames: int | None = None
+                              ) -> UpdateOutcome:
+        """update_markers() after validation: ``points`` (k, 3) the visible markers (finite),
+        ``body`` (k, 3) their body-frame positions."""
+        self._advance(t)
+        self._prior = None
+        self._last_frame_fused = False  # until this frame's fix is fused (_mark_fix)
+        if len(points) == 0:
+            self._counters["occluded"] += 1
+            return UpdateOutcome(t, OCCLUDED, math.nan)
+        pose = marker_pose(points, body)
+        origin = None if pose is None else (float(pose[0][0]), float(pose[0][1]),
+                                             float(pose[0][2]))
+        orientation = self._orientation
+        marker_variance = self.params.marker_position_noise ** 2
+        q_global_imu: Quaternion | None = None
+        fit_variance = math.inf  # of the markers' own orientation (Kabsch), rad^2
+        if pose is not None:
+            q = pose[1]
+            q_global_imu = normalise(quaternion_product(
+                (float(q[0]), float(q[1]), float(q[2]), float(q[3])), self._q_body_imu))
+            fit_variance = max(orientation.measurement_variance,
+                               fit_angle_variance(body, marker_variance))
+            if self._orientation_disagrees(t, q_global_imu, fit_variance):
+                self._counters["orientation_gated"] += 1
+                q_global_imu = None  # positions only: the orientation stays the gyro's
+        if not orientation.state.initialised:
+            if q_global_imu is None:
+                self._counters["no_orientation"] += 1
+                self._counters["occluded"] += 1
+                return UpdateOutcome(t, OCCLUDED, math.nan)
+            orientation.initialise(q_global_imu)
+            state = orientation.state
+            state.covariance = (fit_variance, 0.0, state.covariance[2])
+            self._R_current = None
+            self._last_orientation_fix = t
+        if q_global_imu is not None:
+            quaternion, angle_variance = q_global_imu, fit_variance
+        else:
+            # the gyroscope's orientation error is the same in this frame as in the previous
+            # frames fused with it: counted once in all (module docstring of kfusion.kalman.
+            # markers, "Correlated orientation error")
+            quaternion = orientation.state.quaternion
+            frames = self._frames_on_gyroscope + 1
+            angle_variance = common_error_variance(orientation.angle_variance, frames
+                                                   if shared_frames is None
+                                                   else max(frames, shared_frames))
+        H, offset = self._output_map(quaternion)
+        if not self._initialised:
+            if pose is None or q_global_imu is None:
+                self._counters["occluded"] += 1
+                return UpdateOutcome(t, OCCLUDED, math.nan)
+            self._initialise(t, pose[0], H, offset)
+            self._counters["markers_used"] += len(points)
+            return UpdateOutcome(t, INITIALISED, math.nan, markers_used=len(points),
+                                 marker_origin=origin)
+
+        R_global_body = matrix_from_quaternion(quaternion) @ self._R_imu_body
+        H_all, offset_all = stacked_measurement(H, offset, R_global_body, body)
+        R_all = marker_noise(marker_arms(R_global_body, body, self._lever_in_use(self._kf.x)),
+                             marker_variance, angle_variance)
+        P = self._kf.P
+        with np.errstate(over="ignore", invalid="ignore"):
+            innovations = (points.ravel() - offset_all - H_all @ self._kf.x).reshape(-1, 3)
+        point_covariance = H @ P @ H.T
+        nis_each = [marker_nis(innovations[i], point_covariance
+                               + R_all[3 * i:3 * i + 3, 3 * i:3 * i + 3])
+                    for i in range(len(points))]
+        since = t - self._last_fix if self._last_fix is not None else math.inf
+        keep = marker_gate(nis_each, innovations, self._gate, self.params.gate_min_innovation,
+                           since <= self.params.max_bridge_s)
+        rejected = int(len(points) - keep.sum())
+        self._counters["markers_gated"] += rejected
+        if not keep.any():
+            self._counters["gated"] += 1
+            self._last_nis = float(min(nis_each))
+            return UpdateOutcome(t, GATED, self._last_nis, markers_gated=rejected,
+                                 marker_origin=origin)
+        rows = np.repeat(keep, 3)
+        H_used, R_used = H_all[rows], R_all[np.ix_(rows, rows)]
+        y = innovations[keep].ravel()
+        used = int(keep.sum())
+        nis = model.normalised_innovation_squared(y, H_used @ P @ H_used.T + R_used) / used
+        self._last_nis = nis
+        kind = ACCEPTED
+        if since >= self.params.reacquire_after_s:
+            kind = REACQUIRED
+            if max(nis_each[i] for i in np.flatnonzero(keep)) > self._gate:
+                self._inflate_for_reacquisition(innovations[keep].mean(axis=0), since)
+        if self._interval is not None:
+            self._prior = (np.array(self._kf.x, dtype=float), np.array(self._kf.P, dtype=float))
+        # z - c = H x + r, fused as one stacked measurement (filterpy's Joseph-form update)
+        self._kf.update(points[keep].ravel() - offset_all[rows], R=R_used, H=H_used)
+        self._symmetrise()
+        if q_global_imu is not None:
+            orientation.correct(q_global_imu, fit_variance)
+            self._R_current = None
+            self._last_orientation_fix = t
+            self._frames_on_gyroscope = 0
+        else:
+            self._frames_on_gyroscope += 1
+        self._mark_fix(t)
+        self._counters["markers_used"] += used
+        if kind == REACQUIRED:
+            self._counters["reacquired"] += 1
+        return UpdateOutcome(t, kind, nis, markers_used=used, markers_gated=rejected,
+                             marker_origin=origin)
+
+    def _inflate_for_reacquisition(self, innovation: NDArray[np.float64], since: float
+                                   ) -> None:
+        """Add :func:`kfusion.kalman.model.reacquisition_inflation` of the innovation (3,) m
+        after ``since`` s without a fix to the position and velocity covariance."""
+        position_variance, velocity_variance = model.reacquisition_inflation(innovation, since)
+        P = self._kf.P.copy()
+        P[model.POSITION, model.POSITION] += position_variance * np.eye(3)
+        P[model.VELOCITY, model.VELOCITY] += velocity_variance * np.eye(3)
+        self._kf.P = P
 
     def _finite(self) -> bool:
         """False when a propagation overflowed (an interval of 1e200 s, say)."""
@@ -773,19 +972,21 @@ class KalmanFusion:
         self._last_orientation_fix = None
         self._counters["resets"] += 1
 
-    def _orientation_disagrees(self, t: float, q_global_imu: Quaternion) -> bool:
+    def _orientation_disagrees(self, t: float, q_global_imu: Quaternion,
+                               measurement_variance: float | None = None) -> bool:
         """The mocap orientation fails the gate against the gyroscope-propagated one
         (:func:`kfusion.streamhealth.orientation_gated`), while that one is still valid (an
-        accepted orientation at most ``max_bridge_s`` ago)."""
+        accepted orientation at most ``max_bridge_s`` ago). ``measurement_variance``: the
+        orientation's noise (rad^2) when not the configured one."""
         state = self._orientation.state
         if not (state.initialised and self.params.gating and self._last_orientation_fix
                 is not None and t - self._last_orientation_fix <= self.params.max_bridge_s):
             return False
         innovation = quaternion_log(quaternion_product(conjugate(state.quaternion),
                                                        q_global_imu))
-        return streamhealth.orientation_gated(innovation, state.covariance[0],
-                                              self._orientation.measurement_variance,
-                                              self._gate)
+        return streamhealth.orientation_gated(
+            innovation, state.covariance[0], self._orientation.measurement_variance
+            if measurement_variance is None else measurement_variance, self._gate)
 
     def _mark_fix(self, t: float) -> None:
         self._outage_since_fix = False

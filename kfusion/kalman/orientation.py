@@ -182,8 +182,12 @@ class OrientationTracker:
             state.covariance, dt, self.gyroscope_noise_density, self.gyroscope_bias_random_walk,
             extra_angle_variance)
 
-    def correct(self, q_global_imu: Quaternion) -> Vector:
+    def correct(self, q_global_imu: Quaternion,
+                measurement_variance: float | None = None) -> Vector:
         """Fuse a mocap orientation; returns the innovation ``Log(q_est^-1 ⊗ q_mocap)``, rad.
+
+        ``measurement_variance`` (rad^2 per axis): this orientation's noise sigma_m^2 when it is
+        not the configured one (a Kabsch fit of a few markers); None: the configured one.
 
         Per axis, with ``H = [1, 0]``::
 
@@ -203,7 +207,8 @@ class OrientationTracker:
         state.rotation_since_fix = (0.0, 0.0, 0.0)
         state.scale_variance_peak = 0.0
         angle, cross, bias = state.covariance
-        S = angle + self.measurement_variance
+        S = angle + (self.measurement_variance if measurement_variance is None
+                     else measurement_variance)
         if S <= 0.0:
             # exact orientation and exact prediction: take the measurement as it is
             state.quaternion = normalise(q_global_imu)

@@ -80,6 +80,9 @@ class KalmanParameters:
         tilt_error_inflation: scale (>= 0) of the process noise that accounts for the
             orientation error growing through a gap (see :func:`kfusion.kalman.model.
             orientation_leak_variance`); 0 switches it off, 1 is the derived value.
+        marker_position_noise: 1-sigma per axis of one marker's position, m, > 0 (marker-level
+            fusion, :meth:`kfusion.kalman.KalmanFusion.update_markers`). A rigid body solved
+            from k markers has about ``marker_position_noise / sqrt(k)``.
     """
 
     accelerometer_noise_density: float
@@ -103,6 +106,7 @@ class KalmanParameters:
     max_bridge_s: float = 1.0
     imu_dropout_s: float = 0.1
     tilt_error_inflation: float = 1.0
+    marker_position_noise: float = 0.5e-3
 
     def __post_init__(self) -> None:
         non_negative = (
@@ -119,7 +123,7 @@ class KalmanParameters:
         # never inverted.
         positive = ("accelerometer_noise_density", "accelerometer_bias_random_walk",
                     "mocap_position_noise", "initial_velocity_std", "accelerometer_range",
-                    "gyroscope_range", "max_bridge_s", "imu_dropout_s")
+                    "gyroscope_range", "max_bridge_s", "imu_dropout_s", "marker_position_noise")
         for name in non_negative + positive + ("imu_latency_s",):
             value = getattr(self, name)
             number = real_number(value)

@@ -17,6 +17,7 @@ Modules: :mod:`~kfusion.simulate.trajectories` (smooth curves with exact derivat
 
 from kfusion.simulate.files import read_truth, write_simulation
 from kfusion.simulate.imu import TYPICAL_UNMODELLED, UnmodelledErrors
+from kfusion.simulate.markers import MarkerSpec
 from kfusion.simulate.occlusions import PLACEMENTS, OcclusionSpec
 from kfusion.simulate.simulation import SCENARIOS, Simulation, Truth, simulate
 
@@ -24,6 +25,7 @@ __all__ = [
     "PLACEMENTS",
     "SCENARIOS",
     "TYPICAL_UNMODELLED",
+    "MarkerSpec",
     "OcclusionSpec",
     "Simulation",
     "Truth",

@@ -48,13 +48,14 @@ from kfusion.conventions import (
     specific_force,
 )
 from kfusion.profiles import ImuProfile, MocapProfile, imu_profile, mocap_profile
-from kfusion.recording import ImuSamples, MocapFrames, Recording, RecordingInfo
+from kfusion.recording import ImuSamples, MarkerFrames, MocapFrames, Recording, RecordingInfo
 from kfusion.simulate.imu import (
     UnmodelledErrors,
     apply_unmodelled,
     jittered_stamps,
     simulate_imu,
 )
+from kfusion.simulate.markers import MarkerSpec, hidden_markers, observe_markers
 from kfusion.simulate.mocap import measure_mocap
 from kfusion.simulate.occlusions import OcclusionSpec, place_occlusions
 from kfusion.simulate.scenarios import BUILDERS, DEFAULT_DURATIONS, MIN_DURATION
@@ -201,6 +202,7 @@ def simulate(
     imu_clock_drift_ppm: float = 0.0,
     lever_arm: ArrayLike | None = None,
     unmodelled: UnmodelledErrors | None = None,
+    markers: MarkerSpec | None = None,
 ) -> Simulation:
     """Simulate ``scenario`` (one of :data:`SCENARIOS`) and return recording plus truth.
 
@@ -220,6 +222,11 @@ def simulate(
         unmodelled: IMU error sources the filter's model does not have (misalignment,
             g-sensitivity, temperature drift, timestamp jitter); None or all zero: none, and
             the simulation is the same as without the argument.
+        markers: a marker cluster (:mod:`kfusion.simulate.markers`): the occlusion episodes
+            hide some of its markers, ``markers.csv`` and ``recording.yaml``'s ``markers`` are
+            written, and the mocap rigid body is the Kabsch fit of the visible markers where 3
+            or more are seen (NaN elsewhere; ``truth.occluded`` marks those rows). None (the
+            default): no markers, and the simulation is the same as without the argument.
 
     Raises ValueError on an unknown scenario or profile, bad numbers, or when the occlusion spec
     fits no gap.
@@ -293,8 +300,24 @@ def simulate(
         occluded = np.zeros(len(mocap_t), dtype=bool)
     else:
         occluded = place_occlusions(mocap_t, frames.velocity, occlusions, occlusion_rng)
-    position, quaternion = measure_mocap(mocap_rng, mocap_object, frames.position,
-                                         frames.quaternion, occluded)
+    marker_frames = None
+    if markers is not None:
+        if not isinstance(markers, MarkerSpec):
+            raise ValueError(f"markers: expected a MarkerSpec or None, got {markers!r}")
+        # streams of their own, so that the other draws stay the same
+        marker_rng = np.random.default_rng([int(seed), 0x6D61726B])
+        hidden = hidden_markers(occluded, markers, marker_rng)
+        seen = observe_markers(frames.position, matrix_from_wxyz(frames.quaternion), markers,
+                               hidden, marker_rng)
+        from kfusion.rigid_body import solve_poses  # imports kfusion.calibration
+
+        poses = solve_poses(seen, np.asarray(markers.body_positions, dtype=float))
+        position, quaternion = poses.position, poses.quaternion
+        occluded = ~poses.solved
+        marker_frames = MarkerFrames(t=mocap_t, names=markers.marker_names, position=seen)
+    else:
+        position, quaternion = measure_mocap(mocap_rng, mocap_object, frames.position,
+                                             frames.quaternion, occluded)
 
     recording = Recording(
         imu=ImuSamples(t=imu_stamps, accelerometer=measured.accelerometer,
@@ -302,7 +325,11 @@ def simulate(
         mocap=MocapFrames(t=mocap_t, position=position, quaternion=quaternion),
         info=RecordingInfo(imu_to_body=q_body_imu, gravity=gravity,
                            name=f"{scenario} (simulated, seed {seed})", imu=imu_object.name,
-                           lever_arm=arm),
+                           lever_arm=arm,
+                           markers=None if markers is None else dict(zip(
+                               markers.marker_names, np.asarray(markers.body_positions),
+                               strict=True))),
+        markers=marker_frames,
     )
     truth = Truth(
         t=mocap_t, position=frames.position, occluded=occluded, quaternion=frames.quaternion,

@@ -1,0 +1,204 @@
+"""Marker-level measurements for the position filter, as small pure functions.
+
+A rigid body carries markers at body-frame positions ``m_i`` (m, ``recording.yaml``'s
+``markers``). The filter's state holds the IMU point ``p`` (m, global frame); the rigid-body
+origin is ``p - R l`` (``R = R_global_body``, l the lever arm, 0 when ignored), so marker i is
+seen at::
+
+    z_i = p + R (m_i - l) + r_i = H x + c + R m_i + r_i
+
+with ``H x + c`` the filter's rigid-body point (:func:`kfusion.kalman.model.output_point`) and
+``r_i ~ N(0, sigma_m^2 I)`` the marker's own noise. One visible marker thus constrains the
+position in all three axes, given the orientation.
+
+The orientation is not a state of the position filter (:mod:`kfusion.kalman.orientation`): it is
+known with an error ``dtheta`` (rad, IMU frame, per-axis variance ``sigma_theta^2``),
+``R_true = R_global_imu Exp(dtheta) R_imu_body``. To first order the arm ``a_i = R (m_i - l)``
+(m, global frame) then moves by ``-[a_i x] R_global_imu dtheta``, and since the orientation
+covariance is isotropic (``sigma_theta^2 I`` in any frame)::
+
+    Cov(e_i, e_j) = sigma_theta^2 [a_i x] [a_j x]^T
+                  = sigma_theta^2 ((a_i . a_j) I - a_j a_i^T)
+
+One ``dtheta`` moves every marker, so the term is correlated between markers: the markers of a
+frame are fused as one stacked measurement (3k rows) with the full noise matrix
+(:func:`marker_noise`), never as k independent ones (which would average the orientation error
+away as if it were white).
+
+Correlated orientation error. With fewer than 3 markers the orientation is the gyroscope's, and
+its error ``dtheta`` barely changes from one frame to the next: it is common to every frame fused
+with it since the last orientation fix, while the filter takes each frame's noise as new. N
+measurements ``z_k = p + c + w_k`` with a common error c (variance sigma_c^2) and independent
+ones w_k (sigma_w^2), fused as if independent with the common part's variance inflated to
+``N sigma_c^2``, give ``Var(p) = sigma_c^2 + sigma_w^2 / N``: the true variance of their mean
+(:func:`common_error_variance`). So the k-th frame since the orientation fix takes
+``sigma_theta^2 k`` in its noise: the bound never averages the orientation error away, at the
+price of some information. A smoother combines each frame with the *later* frames of the same
+run too, which share the error; offline, every frame of a run of K frames takes
+``sigma_theta^2 K``, and any subset S of them fused as independent then has
+``(K sigma_c^2 + sigma_w^2) / |S| >= sigma_c^2 + sigma_w^2 / |S|``: covered.
+
+Gate: each marker is tested alone against its own 3x3 innovation covariance
+(:func:`marker_nis`), so a swapped marker is rejected while the others are fused.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+def skew(vector: ArrayLike) -> NDArray[np.float64]:
+    """``[v x]`` (3, 3): the matrix with ``[v x] w = v x w`` for v (3,)."""
+    x, y, z = (float(value) for value in np.asarray(vector, dtype=float))
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def marker_arms(R_global_body: ArrayLike, body_positions: ArrayLike,
+                lever_arm: ArrayLike) -> NDArray[np.float64]:
+    """Arms ``a_i = R_global_body (m_i - l)`` (k, 3), m, global frame: from the IMU point (the
+    filter's position state) to each marker.
+
+    Args:
+        R_global_body: (3, 3) body -> global.
+        body_positions: (k, 3) markers in the body frame, m.
+        lever_arm: (3,) IMU position in the body frame, m (zeros when ignored).
+    """
+    body = np.asarray(body_positions, dtype=float) - np.asarray(lever_arm, dtype=float)
+    return body @ np.asarray(R_global_body, dtype=float).T
+
+
+def marker_noise(arms: ArrayLike, marker_variance: float, angle_variance: float
+                 ) -> NDArray[np.float64]:
+    """Noise matrix (3k, 3k) m^2 of k markers fused together (module docstring)::
+
+        R_ij = delta_ij sigma_m^2 I + sigma_theta^2 [a_i x] [a_j x]^T
+
+    Args:
+        arms: (k, 3) arms ``a_i`` (:func:`marker_arms`), m.
+        marker_variance: ``sigma_m^2``, m^2, per axis.
+        angle_variance: ``sigma_theta^2``, rad^2, per axis of the orientation error.
+    """
+    arms = np.asarray(arms, dtype=float).reshape(-1, 3)
+    blocks = np.stack([skew(arm) for arm in arms]) if len(arms) else np.zeros((0, 3, 3))
+    stacked = blocks.reshape(-1, 3)  # (3k, 3): the [a_i x] stacked
+    R = angle_variance * (stacked @ stacked.T)
+    R[np.diag_indices_from(R)] += marker_variance
+    return R
+
+
+def stacked_measurement(H: ArrayLike, offset: ArrayLike, R_global_body: ArrayLike,
+                        body_positions: ArrayLike
+                        ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(H_k, c_k) of k markers, ``z = H_k x + c_k``: (3k, n) and (3k,).
+
+    ``H`` (3, n) and ``offset`` c (3,) map the state to the rigid-body origin (``H x + c``,
+    the filter's output map); marker i lies ``R_global_body m_i`` from it, so its rows are H
+    and its offset ``c + R m_i``."""
+    H = np.asarray(H, dtype=float)
+    body = np.asarray(body_positions, dtype=float).reshape(-1, 3)
+    offsets = np.asarray(offset, dtype=float)[None, :] + body @ np.asarray(
+        R_global_body, dtype=float).T
+    return np.tile(H, (len(body), 1)), offsets.ravel()
+
+
+def fit_angle_variance(body_positions: ArrayLike, marker_variance: float) -> float:
+    """Per-axis variance (rad^2) of the orientation a Kabsch fit of these markers gives,
+    taken at its worst axis.
+
+    The fit's rotation error dtheta moves centred marker i by ``-[c_i x] dtheta``
+    (``c_i = m_i - mean m``, body frame); least squares over markers of noise sigma_m^2 gives
+    ``Cov(dtheta) = sigma_m^2 J^-1`` with ``J = sum_i [c_i x]^T [c_i x]
+    = sum_i (|c_i|^2 I - c_i c_i^T)``. The orientation filter keeps one variance for all axes,
+    so the largest, ``sigma_m^2 / lambda_min(J)``, is returned. (inf for collinear markers.)
+
+    Args:
+        body_positions: (k, 3) the fitted markers in the body frame, m; k >= 3.
+        marker_variance: sigma_m^2, m^2 per axis.
+    """
+    body = np.asarray(body_positions, dtype=float).reshape(-1, 3)
+    centred = body - body.mean(axis=0)
+    J = np.sum(centred * centred) * np.eye(3) - centred.T @ centred
+    smallest = float(np.linalg.eigvalsh(J)[0])
+    return marker_variance / smallest if smallest > 0 else float("inf")
+
+
+def shared_run_lengths(counts: ArrayLike, enough: int = 3) -> NDArray[np.int_]:
+    """Per frame (m,), the length of the run of consecutive frames with fewer than ``enough``
+    visible markers it belongs to (0 for frames with enough): the frames that share one
+    gyroscope orientation error (offline ``shared_frames`` of the filter)."""
+    few = np.asarray(counts) < enough
+    lengths = np.zeros(len(few), dtype=int)
+    padded = np.concatenate([[False], few, [False]])
+    edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        lengths[start:stop] = stop - start
+    return lengths
+
+
+def common_error_variance(variance: float, frames: int) -> float:
+    """Variance (same unit) to give a common error in the ``frames``-th (>= 1) measurement that
+    shares it: ``frames variance`` (module docstring, "Correlated orientation error")."""
+    return variance * max(int(frames), 1)
+
+
+def marker_gate(nis: Sequence[float], innovations: ArrayLike, threshold: float,
+                min_innovation: float, prediction_valid: bool) -> NDArray[np.bool_]:
+    """Which of k markers pass their own gate (k,): a marker fails when its NIS
+    (:func:`marker_nis`, 3 dof) exceeds ``threshold`` *and* its innovation (3,) m is longer
+    than ``min_innovation`` (m), as a rigid-body fix does
+    (:class:`kfusion.kalman.KalmanFusion`); failing markers are rejected only while the
+    prediction is valid (``prediction_valid``: at most ``max_bridge_s`` after the last fix;
+    later every marker re-acquires). A marker whose innovation overflowed never passes."""
+    values = np.asarray(nis, dtype=float)
+    y = np.asarray(innovations, dtype=float).reshape(-1, 3)
+    with np.errstate(over="ignore", invalid="ignore"):
+        length_squared = np.sum(y * y, axis=1)
+    failed = (values > threshold) & (length_squared > min_innovation ** 2)
+    absurd = ~np.isfinite(values) | ~np.isfinite(y).all(axis=1)
+    return ~absurd & ~(failed & prediction_valid)
+
+
+def marker_nis(y: ArrayLike, S: ArrayLike) -> float:
+    """``y^T S^-1 y`` for one marker's innovation y (3,) m and covariance S (3, 3) m^2; inf when
+    it overflows or S is singular."""
+    y = np.asarray(y, dtype=float)
+    with np.errstate(over="ignore", invalid="ignore"):
+        try:
+            nis = float(y @ np.linalg.solve(np.asarray(S, dtype=float), y))
+        except np.linalg.LinAlgError:
+            return float("inf")
+    return nis if np.isfinite(nis) else float("inf")
+
+
+def marker_pose(points: ArrayLike, body_positions: ArrayLike
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """The rigid-body pose ``(p (3,) m, q_global_body (4,) [w, x, y, z], w >= 0)`` from visible
+    markers (k, 3) and their body positions (k, 3): the Kabsch fit of
+    :func:`kfusion.rigid_body.fit_pose`, with the checks of
+    :func:`kfusion.rigid_body.solve_poses` for one frame. None with fewer than
+    :data:`~kfusion.rigid_body.MIN_MARKERS` markers, nearly collinear ones (the rotation about
+    their line is undetermined), or a marker missing the fitted cluster by more than
+    :data:`~kfusion.rigid_body.DEFAULT_MAX_RESIDUAL` (a swapped marker)."""
+    from scipy.spatial.transform import Rotation
+
+    from kfusion.conventions import wxyz_from_rotation
+    from kfusion.rigid_body import (  # kfusion.rigid_body imports kfusion.calibration
+        DEFAULT_MAX_RESIDUAL,
+        MIN_CLUSTER_SPREAD,
+        MIN_MARKERS,
+        fit_pose,
+        line_spread,
+    )
+
+    seen = np.asarray(points, dtype=float)
+    body = np.asarray(body_positions, dtype=float)
+    if len(seen) < MIN_MARKERS or line_spread(body) < MIN_CLUSTER_SPREAD:
+        return None
+    rotation, origin = fit_pose(body, seen)
+    misses = seen - origin - body @ rotation.T
+    if float(np.max(np.sum(misses * misses, axis=1))) > DEFAULT_MAX_RESIDUAL ** 2:
+        return None
+    return origin, wxyz_from_rotation(Rotation.from_matrix(rotation))

@@ -1,0 +1,461 @@
+"""Marker-level fusion (issue 12): each visible marker is a measurement ``z_i = p + R m_i``.
+
+Layers: one marker update against hand-derived numbers; the orientation-noise matrix against
+its formula; all markers seen against the rigid-body fix; 1-2 markers bound the position where
+the rigid body is not solvable; a swapped marker is rejected alone; NaN never reaches filterpy;
+the Tracker's push_markers against the batch driver bit for bit; the smoother; bad input.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from filterpy.kalman import KalmanFilter
+
+from kfusion.cli import main
+from kfusion.kalman import KalmanFusion, KalmanParameters, run_filter, run_smoother
+from kfusion.kalman.batch import process_recording, resolve_parameters
+from kfusion.kalman.markers import marker_arms, marker_noise, skew
+from kfusion.recording import MarkerFrames, read_recording
+from kfusion.simulate import MarkerSpec, OcclusionSpec, simulate, write_simulation
+from kfusion.tracker import Tracker
+
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+GRAVITY = np.array([0.0, -9.81, 0.0])
+OCCLUSIONS = OcclusionSpec(gap_range=(0.1, 0.5), spacing=1.0)
+
+
+def params(**overrides: float) -> KalmanParameters:
+    values = dict(accelerometer_noise_density=0.003, accelerometer_bias_random_walk=1e-4,
+                  gyroscope_noise_density=1e-4, gyroscope_bias_random_walk=1e-5,
+                  mocap_position_noise=1e-3, mocap_orientation_noise=0.01,
+                  initial_bias_std=0.1, initial_gyroscope_bias_std=0.01, lever_arm_std=0.0,
+                  marker_position_noise=1e-3)
+    values.update(overrides)
+    return KalmanParameters(**values)  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def partial():
+    """A simulated arm_lift with a 4-marker cluster and partial occlusions (12 s)."""
+    return simulate("arm_lift", seed=5, duration=12.0, markers=MarkerSpec(),
+                    occlusions=OCCLUSIONS)
+
+
+def test_skew_and_orientation_noise_follow_their_formula():
+    a, b = np.array([0.1, -0.02, 0.03]), np.array([-0.04, 0.05, 0.01])
+    w = np.array([0.3, 0.7, -1.1])
+    np.testing.assert_allclose(skew(a) @ w, np.cross(a, w), atol=1e-15)
+    R = marker_noise(np.array([a, b]), 4e-6, 1e-4)
+    # sigma_theta^2 ((a . b) I - b a^T) off the diagonal; plus sigma_m^2 I on it
+    np.testing.assert_allclose(R[0:3, 3:6], 1e-4 * ((a @ b) * np.eye(3) - np.outer(b, a)),
+                               atol=1e-18)
+    np.testing.assert_allclose(R[0:3, 0:3], 4e-6 * np.eye(3) + 1e-4 * (
+        (a @ a) * np.eye(3) - np.outer(a, a)), atol=1e-18)
+    np.testing.assert_allclose(R, R.T)
+    # the arm from the IMU point: R (m - l)
+    rotation = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(marker_arms(rotation, [[0.1, 0.0, 0.0]], [0.02, 0.0, 0.0]),
+                               [[0.0, 0.08, 0.0]], atol=1e-15)
+
+
+def test_marker_gate_rejects_each_marker_alone():
+    from kfusion.kalman.markers import marker_gate
+
+    y = np.array([[0.001, 0, 0], [0.02, 0, 0], [0.005, 0, 0], [np.inf, 0, 0]])
+    nis = [1.0, 400.0, 400.0, np.inf]  # the third is far out but within the 1 cm floor
+    np.testing.assert_array_equal(marker_gate(nis, y, 21.1, 0.01, True),
+                                  [True, False, True, False])
+    # past max_bridge_s the prediction is lost: every finite marker re-acquires
+    np.testing.assert_array_equal(marker_gate(nis, y, 21.1, 0.01, False),
+                                  [True, True, True, False])
+
+
+def test_one_marker_update_by_hand():
+    """After a body fix at p0 (P_pp = sigma_p^2 I, orientation variance sigma_o^2, identity
+    orientation), one marker at m = (0.1, 0, 0) seen at p0 + m + y. Its noise is
+    sigma_m^2 I + sigma_o^2 [m x][m x]^T = diag(1, 2, 2) 1e-6 m^2 with sigma_m = 1 mm,
+    sigma_o = 0.01 rad, so the gains on p are 1e-6 / (1e-6 + R_ii) = 1/2, 1/3, 1/3 and the
+    posterior variances sigma_p^2 R_ii / (sigma_p^2 + R_ii) = 0.5, 2/3, 2/3 (1e-6 m^2)."""
+    fusion = KalmanFusion(IDENTITY, GRAVITY, params(), lever_arm=np.zeros(3))
+    p0 = np.array([0.3, 1.2, -0.4])
+    assert fusion.update(0.0, p0, IDENTITY).kind == "initialised"
+    y = np.array([0.002, 0.003, -0.003])
+    marker = np.array([[0.1, 0.0, 0.0]])
+    outcome = fusion.update_markers(0.0, p0 + marker + y, marker)
+    assert (outcome.kind, outcome.markers_used, outcome.markers_gated) == ("accepted", 1, 0)
+    assert outcome.marker_origin is None  # one marker: no pose
+    # NIS = 0.002^2 / 2e-6 + 0.003^2 / 3e-6 * 2 = 2 + 3 + 3
+    assert outcome.nis == pytest.approx(8.0, rel=1e-12)
+    np.testing.assert_allclose(fusion.x[0:3], p0 + [0.001, 0.001, -0.001], atol=1e-15)
+    np.testing.assert_allclose(np.diag(fusion.P)[0:3], [0.5e-6, 2e-6 / 3, 2e-6 / 3],
+                               rtol=1e-12)
+    assert fusion.counters["markers_used"] == 1
+
+
+def test_two_markers_fused_together_match_a_direct_numpy_update():
+    """Two markers on a rotated body with a given lever arm, against the Kalman update written
+    out in numpy: z = p - R l + R m_i, R_ij = delta_ij sigma_m^2 I + sigma_o^2 [a_i x][a_j x]^T
+    with a_i = R (m_i - l), K = P H^T (H P H^T + R)^-1, P+ = (I - K H) P."""
+    angle = 0.7
+    q = np.array([math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2)])  # about z
+    rotation = np.array([[math.cos(angle), -math.sin(angle), 0.0],
+                         [math.sin(angle), math.cos(angle), 0.0], [0.0, 0.0, 1.0]])
+    lever = np.array([0.01, -0.02, 0.005])
+    fusion = KalmanFusion(IDENTITY, GRAVITY, params(), lever_arm=lever)
+    origin = np.array([0.2, 1.0, -0.3])
+    fusion.update(0.0, origin, q)
+    x0, P0 = fusion.x, fusion.P
+    body = np.array([[0.05, 0.01, 0.0], [-0.02, 0.04, 0.03]])
+    offsets = np.array([0.002, -0.001, 0.0015, -0.003, 0.0, 0.001])
+    seen = origin + body @ rotation.T + offsets.reshape(2, 3)
+    outcome = fusion.update_markers(0.0, seen, body)
+    assert outcome.markers_used == 2
+    arms = (body - lever) @ rotation.T
+    blocks = np.vstack([skew(arm) for arm in arms])
+    R = 1e-6 * np.eye(6) + 0.01 ** 2 * blocks @ blocks.T
+    H = np.tile(np.hstack([np.eye(3), np.zeros((3, 6))]), (2, 1))
+    predicted = np.concatenate([x0[:3] + arm for arm in arms])
+    S = H @ P0 @ H.T + R
+    K = P0 @ H.T @ np.linalg.inv(S)
+    np.testing.assert_allclose(fusion.x, x0 + K @ (seen.ravel() - predicted), atol=1e-12)
+    np.testing.assert_allclose(fusion.P, (np.eye(9) - K @ H) @ P0, atol=1e-15)
+
+
+def test_a_shared_orientation_error_is_counted_once_per_run(monkeypatch):
+    """The k-th frame fused with the gyroscope's orientation since the last orientation fix
+    takes k sigma_o^2 (online); offline, every frame of a run of K takes K sigma_o^2. With
+    m = (0.1, 0, 0) the orientation part of R is sigma_o^2 k diag(0, 0.01, 0.01)."""
+    from kfusion.kalman.markers import common_error_variance, shared_run_lengths
+
+    np.testing.assert_array_equal(shared_run_lengths([4, 2, 1, 3, 0, 0, 4, 2]),
+                                  [0, 2, 2, 0, 2, 2, 0, 1])
+    assert common_error_variance(2.0, 3) == 6.0
+    noises = []
+    original = KalmanFilter.update
+
+    def capture(self, z, R=None, H=None):
+        noises.append(np.array(R))
+        return original(self, z, R=R, H=H)
+
+    monkeypatch.setattr(KalmanFilter, "update", capture)
+    marker = np.array([[0.1, 0.0, 0.0]])
+    for shared, expected in ((None, [1, 2, 3]), (5, [5, 5, 5])):
+        noises.clear()
+        fusion = KalmanFusion(IDENTITY, GRAVITY, params(), lever_arm=np.zeros(3))
+        fusion.update(0.0, np.zeros(3), IDENTITY)
+        for _ in range(3):
+            fusion.update_markers(0.0, marker, marker, shared_frames=shared)
+        orientation_part = [R[1, 1] - 1e-6 for R in noises[:3]]  # sigma_m^2 = 1e-6
+        np.testing.assert_allclose(orientation_part, 1e-4 * 0.01 * np.array(expected),
+                                   rtol=1e-9)
+        fusion.update(0.0, np.zeros(3), IDENTITY)  # an orientation fix starts a new run
+        fusion.update_markers(0.0, marker, marker)
+        assert noises[-1][1, 1] - 1e-6 < 1e-4 * 0.01 * 1.0001
+
+
+def test_three_markers_give_the_orientation_and_fuse_with_correlated_noise():
+    """Three markers where the body is rotated 90 degrees about z: the first frame initialises
+    position (the Kabsch origin) and orientation from them."""
+    body = np.array([[0.05, 0.0, 0.0], [0.0, 0.04, 0.0], [0.0, 0.0, 0.03]])
+    rotation = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    origin = np.array([0.1, 0.2, 0.3])
+    fusion = KalmanFusion(IDENTITY, GRAVITY, params(), lever_arm=np.zeros(3))
+    before = fusion.update_markers(0.0, (origin + body @ rotation.T)[:2], body[:2])
+    assert before.kind == "occluded"  # two markers cannot start the filter
+    outcome = fusion.update_markers(0.01, origin + body @ rotation.T, body)
+    assert outcome.kind == "initialised" and outcome.markers_used == 3
+    np.testing.assert_allclose(outcome.marker_origin, origin, atol=1e-12)
+    estimate = fusion.estimate()
+    np.testing.assert_allclose(estimate.position, origin, atol=1e-12)
+    np.testing.assert_allclose(estimate.orientation, [math.sqrt(0.5), 0, 0, math.sqrt(0.5)],
+                               atol=1e-12)
+
+
+def test_all_markers_seen_is_close_to_the_rigid_body_fix():
+    """No occlusion: fusing the 4 markers and fusing their Kabsch rigid body give positions
+    within a fraction of a millimetre of each other and errors of the same size."""
+    simulation = simulate("circle", seed=2, duration=8.0, markers=MarkerSpec(), occlusions=None)
+    recording, truth = simulation.recording, simulation.truth.position
+    body = run_filter(recording, measurement="body", monitor=None).result
+    markers = run_filter(recording, measurement="markers", monitor=None).result
+    assert (markers.status == "tracked").all() and (body.status == "tracked").all()
+    difference = np.linalg.norm(markers.position - body.position, axis=1)
+    assert np.max(difference[100:]) < 0.5e-3
+    body_rms = np.sqrt(np.mean(np.sum((body.position - truth) ** 2, axis=1)[100:]))
+    marker_rms = np.sqrt(np.mean(np.sum((markers.position - truth) ** 2, axis=1)[100:]))
+    assert 0.5 < marker_rms / body_rms < 1.5
+
+
+def test_one_or_two_markers_bound_the_position_where_the_body_is_not_solvable(partial):
+    recording, truth = partial.recording, partial.truth.position
+    gap = ~recording.mocap.visible
+    seen = recording.markers.visible.sum(axis=1)
+    few = gap & ((seen == 1) | (seen == 2))
+    assert few.sum() > 50
+    body = run_filter(recording, measurement="body").result
+    markers = run_filter(recording, measurement="markers").result
+    assert (markers.status[few] == "tracked").all()  # the markers are fixes
+    assert (body.status[few] != "tracked").all()
+    error = markers.position[few] - truth[few]
+    assert np.mean((np.abs(error) <= 3 * markers.std[few]).all(axis=1)) >= 0.99
+    marker_rms = np.sqrt(np.mean(np.sum(error ** 2, axis=1)))
+    body_rms = np.sqrt(np.mean(np.sum((body.position[few] - truth[few]) ** 2, axis=1)))
+    assert marker_rms < body_rms
+    # the bound itself stays sub-millimetre: one marker pins all three axes
+    assert np.median(markers.std[few]) < 1e-3
+
+
+def swapped(recording, rows, marker: int, offset: np.ndarray):
+    """The recording with one marker moved by ``offset`` (m) on ``rows`` (a mislabel)."""
+    position = np.array(recording.markers.position)
+    position[rows, marker] += offset
+    markers = MarkerFrames(t=recording.markers.t, names=recording.markers.names,
+                           position=position)
+    return dataclasses.replace(recording, markers=markers)
+
+
+def test_a_swapped_marker_is_rejected_alone(partial):
+    recording, truth = partial.recording, partial.truth.position
+    full = np.flatnonzero(recording.markers.visible.all(axis=1))
+    rows = full[(full > 400) & (full < 460)]
+    assert len(rows) > 40
+    bad = swapped(recording, rows, 1, np.array([0.03, -0.02, 0.0]))
+    clean = run_filter(recording, measurement="markers")
+    run = run_filter(bad, measurement="markers")
+    assert run.counters["markers_gated"] - clean.counters["markers_gated"] == len(rows)
+    assert (run.outcome[rows] == "accepted").all()  # the other three are fused
+    error = np.linalg.norm(run.result.position[rows] - truth[rows], axis=1)
+    assert error.max() < 2e-3
+    # a rigid-body fix from the same frames is refused (residual) and the gyro keeps the
+    # orientation: no frame of the swap is gated as a whole
+    assert run.counters["gated"] == clean.counters["gated"]
+
+
+def test_nan_and_inf_markers_never_reach_filterpy(partial, monkeypatch):
+    original = KalmanFilter.update
+    seen = []
+
+    def checked(self, z, R=None, H=None):
+        assert np.isfinite(z).all() and (R is None or np.isfinite(R).all())
+        seen.append(len(np.atleast_1d(z)))
+        return original(self, z, R=R, H=H)
+
+    monkeypatch.setattr(KalmanFilter, "update", checked)
+    recording = partial.recording
+    position = np.array(recording.markers.position)
+    position[::7, 0] = np.inf  # an absurd marker is treated as occluded, alone
+    position[::5, 2, 1] = np.nan  # one NaN coordinate hides that marker
+    markers = MarkerFrames(t=recording.markers.t, names=recording.markers.names,
+                           position=np.where(np.isinf(position), np.nan, position))
+    run = run_filter(dataclasses.replace(recording, markers=markers), measurement="markers")
+    found = run.result.status != "lost"  # row 0 has only two markers left: not initialised
+    assert found[1:].all() and np.isfinite(run.result.position[found]).all()
+    assert {3, 6, 9, 12} <= set(seen)
+    fusion = KalmanFusion(IDENTITY, GRAVITY, params(), lever_arm=np.zeros(3))
+    fusion.update(0.0, [0.0, 1.0, 0.0], IDENTITY)
+    body = np.eye(3) * 0.05
+    observed = np.array([[np.inf, 0, 0], [np.nan, 1.0, 0.0], [0.0, 1.0, 0.05]])
+    outcome = fusion.update_markers(0.01, observed, body)
+    assert outcome.markers_used == 1 and np.isfinite(fusion.x).all()
+    tracker = Tracker(IDENTITY, GRAVITY, params=params(), markers={"A": [0.05, 0, 0]})
+    assert tracker.push_markers(0.0, {"A": [np.nan, 0.0, 0.0]}).reason == "occluded"
+    assert tracker.push_markers(0.01, {"A": [np.inf, 0.0, 0.0]}).reason == "non_finite"
+    assert tracker.push_markers(0.02, {"A": None}).reason == "occluded"
+
+
+def marker_frame(recording, row: int) -> dict:
+    markers = recording.markers
+    return {name: (markers.position[row, index] if markers.visible[row, index] else None)
+            for index, name in enumerate(markers.names)}
+
+
+def test_push_markers_equals_kfusion_track_with_markers_bit_for_bit(tmp_path, capsys):
+    simulation = simulate("random_reach", seed=2, duration=6.0, markers=MarkerSpec(),
+                          occlusions=OCCLUSIONS)
+    assert (simulation.recording.markers.visible.sum(axis=1) < 3).sum() > 30
+    folder = write_simulation(simulation, tmp_path / "recording")
+    out = tmp_path / "track.csv"
+    assert main(["track", str(folder), "--out", str(out), "--force"]) == 0
+    assert "measurement: markers)" in capsys.readouterr().out
+    recording = read_recording(folder)
+    batch = run_filter(recording, measurement="markers")
+    from kfusion.track_file import read_track
+
+    written = read_track(out)
+    np.testing.assert_array_equal(written.status, batch.result.status)
+    np.testing.assert_allclose(written.position, batch.result.position, rtol=0, atol=1e-12)
+    params_used = resolve_parameters(recording, None, {})
+    events = sorted([(t, 0, i) for i, t in enumerate(recording.imu.t)]
+                    + [(t, 1, j) for j, t in enumerate(recording.mocap.t)])
+    in_order = Tracker.from_recording_info(recording.info, params=params_used)
+    late = Tracker.from_recording_info(recording.info, params=params_used)
+    m = len(recording.mocap)
+    position, std, status = np.full((m, 3), np.nan), np.full((m, 3), np.nan), []
+    held = None  # in `late`, each marker frame arrives after the next IMU sample
+    for t, stream, index in events:
+        if stream == 0:
+            sample = (t, recording.imu.accelerometer[index], recording.imu.gyroscope[index])
+            in_order.push_imu(*sample)
+            late.push_imu(*sample)
+            if held is not None:
+                late.push_markers(*held)
+                held = None
+            continue
+        in_order.push_markers(t, marker_frame(recording, index))
+        held = (t, marker_frame(recording, index))
+        estimate = in_order.estimate(t)
+        position[index], std[index] = estimate.position, estimate.std
+        status.append(estimate.status)
+    if held is not None:
+        late.push_markers(*held)
+    np.testing.assert_array_equal(status, batch.result.status)
+    np.testing.assert_array_equal(position, batch.result.position)
+    np.testing.assert_array_equal(std, batch.result.std)
+    assert in_order.health.markers_used == batch.counters["markers_used"]
+    # out of step (replayed from checkpoints): the same state at the end
+    end = float(recording.imu.t[-1])
+    assert late.health.replays > 100
+    np.testing.assert_array_equal(late.estimate(end).position, in_order.estimate(end).position)
+    assert late.health.markers_used == in_order.health.markers_used
+
+
+def test_the_smoother_fuses_markers(partial):
+    recording, truth = partial.recording, partial.truth.position
+    gap = ~recording.mocap.visible
+    run = run_smoother(recording, measurement="markers")
+    body = run_smoother(recording, measurement="body")
+    usable = gap & (run.result.status != "lost")
+    error = run.result.position[usable] - truth[usable]
+    assert np.mean((np.abs(error) <= 3 * run.result.std[usable]).all(axis=1)) >= 0.99
+    rms = np.sqrt(np.mean(np.sum(error ** 2, axis=1)))
+    filtered = run.filtered.position[usable] - truth[usable]
+    assert rms <= np.sqrt(np.mean(np.sum(filtered ** 2, axis=1)))
+    body_error = body.result.position[usable] - truth[usable]
+    assert rms < np.sqrt(np.mean(np.sum(body_error ** 2, axis=1)))
+
+
+def test_bad_marker_input_is_refused_with_clear_errors(partial, tmp_path, capsys):
+    fusion = KalmanFusion(IDENTITY, GRAVITY, params(), lever_arm=np.zeros(3))
+    with pytest.raises(ValueError, match=r"expected observed and body_positions of one shape "
+                                         r"\(k, 3\), got \(2, 3\) and \(3, 3\)"):
+        fusion.update_markers(0.0, np.zeros((2, 3)), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="body_positions: expected finite numbers"):
+        fusion.update_markers(0.0, np.zeros((1, 3)), [[np.nan, 0.0, 0.0]])
+    with pytest.raises(ValueError, match="masked"):
+        fusion.update_markers(0.0, np.ma.masked_array(np.zeros((1, 3))), np.zeros((1, 3)))
+    tracker = Tracker(IDENTITY, GRAVITY, markers={"A": [0.05, 0, 0], "B": [0, 0.05, 0]})
+    with pytest.raises(ValueError, match=r"unknown marker 'C'; expected names from \['A', 'B'\]"):
+        tracker.push_markers(0.0, {"C": [0.0, 0.0, 0.0]})
+    with pytest.raises(ValueError, match=r"markers\['B'\]"):
+        tracker.push_markers(0.0, {"B": [0.0, 0.0]})
+    with pytest.raises(ValueError, match="expected a mapping"):
+        tracker.push_markers(0.0, [[0.0, 0.0, 0.0]])
+    with pytest.raises(ValueError, match="no markers"):
+        Tracker(IDENTITY, GRAVITY).push_markers(0.0, {"A": None})
+    with pytest.raises(ValueError, match="method 'baseline'"):
+        Tracker(IDENTITY, GRAVITY, method="baseline",
+                markers={"A": [0, 0, 0]}).push_markers(0.0, {"A": None})
+    with pytest.raises(ValueError, match=r"markers\['A'\]: expected 3 finite numbers"):
+        Tracker(IDENTITY, GRAVITY, markers={"A": [np.inf, 0, 0]})
+    assert tracker.health.mocap_pushed == 0  # nothing counted for a refused call
+    # the batch driver and the command line
+    plain = simulate("arm_lift", seed=1, duration=6.0)
+    with pytest.raises(ValueError, match="expected markers.csv and a markers: section"):
+        run_filter(plain.recording, measurement="markers")
+    with pytest.raises(ValueError, match="measurement: expected one of"):
+        process_recording(plain.recording, KalmanFusion(IDENTITY, GRAVITY, params()),
+                          lambda row, outcome: None, measurement="rigid")
+    folder = write_simulation(plain, tmp_path / "plain")
+    out = tmp_path / "out.csv"
+    assert main(["track", str(folder), "--out", str(out), "--measurement", "markers",
+                 "--force"]) == 2
+    assert "needs markers.csv" in capsys.readouterr().err
+    assert not out.exists()
+    marked = write_simulation(partial, tmp_path / "marked")
+    assert main(["track", str(marked), "--out", str(out), "--method", "baseline",
+                 "--measurement", "markers", "--force"]) == 2
+    assert "fuses rigid bodies only" in capsys.readouterr().err
+    assert main(["track", str(marked), "--out", str(out), "--method", "baseline",
+                 "--force"]) == 0
+    assert "measurement: body)" in capsys.readouterr().out
+
+
+def test_simulated_markers_are_opt_in_and_leave_the_other_draws_alone(partial):
+    plain = simulate("arm_lift", seed=5, duration=12.0, occlusions=OCCLUSIONS)
+    assert plain.recording.markers is None and plain.recording.info.markers is None
+    recording = partial.recording
+    np.testing.assert_array_equal(recording.imu.accelerometer, plain.recording.imu.accelerometer)
+    np.testing.assert_array_equal(partial.truth.position, plain.truth.position)
+    assert list(recording.info.markers) == ["M1", "M2", "M3", "M4"]
+    # mocap.csv is the rigid body exactly where 3 or more markers are seen, as Motive solves it
+    seen = recording.markers.visible.sum(axis=1)
+    np.testing.assert_array_equal(recording.mocap.visible, seen >= 3)
+    np.testing.assert_array_equal(partial.truth.occluded, seen < 3)
+    error = np.linalg.norm(recording.mocap.position - partial.truth.position, axis=1)
+    assert np.nanmax(error) < 3e-3 and np.nanmedian(error) < 0.6e-3
+    # the markers' noise is the spec's: seen - (p + R m) has std 0.5 mm per axis
+    from kfusion.conventions import matrix_from_wxyz
+
+    body = np.array(MarkerSpec().body_positions)
+    true = partial.truth.position[:, None, :] + np.einsum(
+        "kij,nj->kni", matrix_from_wxyz(partial.truth.quaternion), body)
+    assert np.nanstd(recording.markers.position - true) == pytest.approx(0.5e-3, rel=0.05)
+
+
+def test_occlusion_episodes_mostly_hide_one_or_two_markers():
+    from kfusion.simulate.markers import hidden_markers
+
+    episodes = np.zeros(40_000, dtype=bool)
+    for start in range(10, 40_000, 40):
+        episodes[start:start + 20] = True  # 1000 episodes of 20 frames
+    hidden = hidden_markers(episodes, MarkerSpec(), np.random.default_rng(3))
+    per_episode = np.array([hidden[start:start + 20].any(axis=0)
+                            for start in range(10, 40_000, 40)])
+    count = per_episode.sum(axis=1)
+    assert not hidden[~episodes].any()
+    assert np.mean((count == 1) | (count == 2)) == pytest.approx(0.80, abs=0.05)
+    assert np.mean(count == 4) == pytest.approx(0.10, abs=0.03)
+    # which markers are hidden is independent of the marker: each in a quarter to a half
+    assert np.all((per_episode.mean(axis=0) > 0.3) & (per_episode.mean(axis=0) < 0.6))
+    # one marker hides throughout an episode, others over their own part of it
+    assert (hidden[10:30].sum(axis=0) <= 20).all()
+    frames_all_hidden = hidden.all(axis=1).sum()
+    assert 0 < frames_all_hidden < (count == 4).sum() * 20
+
+
+def test_simulate_writes_c3d_that_converts_back(tmp_path, capsys):
+    pytest.importorskip("ezc3d", reason="ezc3d not installed: pip install 'kfusion[c3d]'")
+    folder, c3d = tmp_path / "sim", tmp_path / "take.c3d"
+    assert main(["simulate", "circle", "--seed", "4", "--duration", "8", "--markers",
+                 "--gap-max", "0.5", "--c3d", str(c3d), "--out", str(folder)]) == 0
+    assert f"wrote {c3d}" in capsys.readouterr().out
+    simulated = read_recording(folder)
+    converted_folder = tmp_path / "converted"
+    assert main(["convert", "c3d", str(c3d), "--markers", "M1,M2,M3,M4", "--imu",
+                 str(folder / "imu.csv"), "--imu-to-body", "1", "0", "0", "0",
+                 "--out", str(converted_folder)]) == 0
+    capsys.readouterr()
+    converted = read_recording(converted_folder)
+    np.testing.assert_allclose(converted.markers.t, simulated.markers.t, atol=1e-9)
+    np.testing.assert_array_equal(converted.markers.visible, simulated.markers.visible)
+    np.testing.assert_allclose(converted.markers.position, simulated.markers.position,
+                               atol=1e-6)  # float32 in mm
+    np.testing.assert_array_equal(converted.mocap.visible, simulated.mocap.visible)
+    assert main(["simulate", "circle", "--c3d", str(c3d), "--out", str(folder)]) == 2
+    assert "expected --markers too" in capsys.readouterr().err
+
+
+def test_a_tracker_from_recording_yaml_takes_its_markers(partial, tmp_path):
+    folder = write_simulation(partial, tmp_path / "recording")
+    tracker = Tracker.from_yaml(folder / "recording.yaml")
+    recording = partial.recording
+    for row in range(3):
+        tracker.push_imu(recording.imu.t[2 * row], recording.imu.accelerometer[2 * row],
+                         recording.imu.gyroscope[2 * row])
+        outcome = tracker.push_markers(recording.mocap.t[row], marker_frame(recording, row))
+        assert outcome.accepted
+    assert tracker.health.markers_used == 12 and tracker.health.mocap_fused == 3
