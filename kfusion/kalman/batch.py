@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kfusion.conventions import BRIDGED, LOST
+from kfusion.kalman.engines import DEFAULT_ENGINE, ENGINES
 from kfusion.kalman.events import IMU_STREAM, merge_events
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
 from kfusion.kalman.model import output_covariance, output_point
@@ -245,6 +246,11 @@ class _RowRecorder:
         self.dead_reckoned = np.zeros(rows, dtype=bool)
         # (m, 3) m^2: variance the monitor's rival hypotheses add per axis (cover_rivals)
         self.rival_variance = np.zeros((rows, 3))
+        self.counters: dict[str, int] = {}
+
+    def finish(self) -> None:
+        """Take the filter's final counters."""
+        self.counters = self.fusion.counters
 
     def record(self, row: int, outcome: UpdateOutcome) -> None:
         fusion = self.fusion
@@ -275,18 +281,61 @@ class _RowRecorder:
         return np.isfinite(self.x[:, 0])
 
 
+def check_engine(engine: str) -> str:
+    """``engine`` if it names one (:data:`ENGINES`), else a ValueError saying which exist."""
+    if engine not in ENGINES:
+        raise ValueError(f"engine: expected one of {list(ENGINES)}, got {engine!r}")
+    return engine
+
+
+def _compiled_rows(recording: Recording, fusion: KalmanFusion) -> _RowRecorder | None:
+    """The per-row arrays of :func:`process_recording` computed by the compiled whole-loop
+    kernel (:func:`kfusion.kalman.compiled.filter_events`) over the same merged events, with
+    ``fusion``'s configuration (``fusion`` itself is not run). None when the kernel stops at an
+    event it cannot handle (an out-of-order stamp): the caller runs the filterpy engine, whose
+    error names it."""
+    from kfusion.kalman import compiled  # numba loads on first use of the engine
+
+    recording = on_mocap_clock(recording)
+    imu, mocap = recording.imu, recording.mocap
+    events = merge_events(imu.t.tolist(), mocap.t.tolist(), fusion.params.imu_latency_s)
+    while events and events[-1][1] == IMU_STREAM:
+        events.pop()
+    run = compiled.run_kernel(imu.t, imu.accelerometer, imu.gyroscope, mocap.t, mocap.position,
+                              mocap.quaternion, mocap.visible, events, fusion.kernel_config(),
+                              fusion.size)
+    if run.failed_event >= 0:
+        return None
+    recorder = _RowRecorder(fusion, len(mocap))
+    recorder.x, recorder.P = run.x, run.P
+    recorder.output_matrix, recorder.output_offset = run.output_matrix, run.output_offset
+    recorder.outcome = run.outcome.astype(object)
+    recorder.nis, recorder.dead_reckoned = run.nis, run.dead_reckoned
+    recorder.counters = run.counters
+    return recorder
+
+
 def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
                monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008 (frozen)
-               **overrides: Any) -> FilterRun:
-    """Run :class:`KalmanFusion` over ``recording`` and keep its per-row states and outcomes.
+               engine: str = DEFAULT_ENGINE, **overrides: Any) -> FilterRun:
+    """Run the filter over ``recording`` and keep its per-row states and outcomes.
 
     ``monitor``: the consistency monitor's settings (:mod:`kfusion.monitor`); None runs the
-    filter alone (the bound is then the profile's)."""
+    filter alone (the bound is then the profile's). ``engine``: ``compiled`` (the numba
+    whole-loop kernel, :mod:`kfusion.kalman.compiled`) or ``filterpy`` (:class:`KalmanFusion`
+    step by step). The consistency monitor watches a filter event by event, so with a monitor
+    the filterpy engine runs whatever ``engine`` says (the compiled kernel has no monitor)."""
+    check_engine(engine)
     params = resolve_parameters(recording, params, overrides)
     fusion = make_fusion(recording, params)
     watcher = make_monitor(recording, params, monitor)
-    recorder = _RowRecorder(fusion, len(recording.mocap), watcher)
-    process_recording(recording, fusion, recorder.record, watcher)
+    recorder = None
+    if engine == "compiled" and watcher is None:
+        recorder = _compiled_rows(recording, fusion)
+    if recorder is None:
+        recorder = _RowRecorder(fusion, len(recording.mocap), watcher)
+        process_recording(recording, fusion, recorder.record, watcher)
+        recorder.finish()
     status, since = status_from_fixes(recording.mocap.t, recorder.fixed, recorder.initialised,
                                       params.max_bridge_s, recorder.dead_reckoned)
     position, variance = point_estimates(recorder.x, recorder.P, recorder.output_matrix,
@@ -303,14 +352,14 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
     return FilterRun(result=result, x=recorder.x, P=recorder.P,
                      output_matrix=recorder.output_matrix, output_offset=recorder.output_offset,
                      outcome=recorder.outcome.astype(str), nis=recorder.nis,
-                     counters=fusion.counters, params=params,
+                     counters=recorder.counters, params=params,
                      monitor=None if watcher is None else watcher.report(),
                      variance_scale=scale)
 
 
 def filter_recording(recording: Recording, params: KalmanParameters | None = None, *,
                      monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008
-                     **overrides: Any) -> TrackResult:
+                     engine: str = DEFAULT_ENGINE, **overrides: Any) -> TrackResult:
     """Method ``kalman``: the streaming filter's estimate at every mocap row.
 
     Args:
@@ -318,6 +367,7 @@ def filter_recording(recording: Recording, params: KalmanParameters | None = Non
         params: parameters; None builds them from ``recording.info.imu`` (see
             :meth:`KalmanParameters.from_profiles`).
         monitor: consistency monitor settings (None: off).
+        engine: ``compiled`` or ``filterpy`` (see :func:`run_filter`).
         overrides: parameter fields to replace (e.g. ``max_bridge_s=0.5``).
 
     Returns:
@@ -325,4 +375,4 @@ def filter_recording(recording: Recording, params: KalmanParameters | None = Non
         the monitor in gaps (m), status tracked/bridged/lost and time since the last accepted
         fix (s).
     """
-    return run_filter(recording, params, monitor=monitor, **overrides).result
+    return run_filter(recording, params, monitor=monitor, engine=engine, **overrides).result

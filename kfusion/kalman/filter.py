@@ -468,6 +468,14 @@ class KalmanFusion:
             x[model.VELOCITY].copy(), x[model.BIAS].copy(), self._lever_in_use(x),
             np.asarray(quaternion), P, status, since, self._last_nis)
 
+    def kernel_config(self) -> NDArray[np.float64]:
+        """This filter's configuration packed for the compiled engine
+        (:func:`kfusion.kalman.compiled.pack_config`; imports numba)."""
+        from kfusion.kalman.compiled import pack_config
+
+        return pack_config(self.params, self._q_body_imu, self._R_imu_body, self._gravity,
+                           self._lever_arm, self.size)
+
     # ------------------------------------------------------------------ save / restore
 
     def _configuration(self) -> tuple[Any, ...]:
