@@ -58,11 +58,22 @@ class MethodRun:
                 "imu_per_second": self.imu_samples / self.seconds if self.seconds else np.nan}
 
 
-def run_method(scored: ScoredRecording, method: str, options: Mapping[str, Any] | None = None
-               ) -> MethodRun:
-    """Track ``scored.recording`` with ``method`` and score its gap samples."""
+ENGINE_METHODS = ("kalman",)
+"""Methods that take an ``engine`` (:mod:`kfusion.kalman.engines`)."""
+
+
+def engine_options(method: str, engine: str | None) -> dict[str, Any]:
+    """``{"engine": engine}`` for a method that has engines (:data:`ENGINE_METHODS`), else {}."""
+    return {"engine": engine} if engine is not None and method in ENGINE_METHODS else {}
+
+
+def run_method(scored: ScoredRecording, method: str, options: Mapping[str, Any] | None = None,
+               engine: str | None = None) -> MethodRun:
+    """Track ``scored.recording`` with ``method`` and score its gap samples. ``engine``:
+    ``compiled`` or ``filterpy`` for the methods of :data:`ENGINE_METHODS` (None: default)."""
     start = time.perf_counter()
-    result = track_with_method(scored.recording, method, **dict(options or {}))
+    result = track_with_method(scored.recording, method, **dict(options or {}),
+                               **engine_options(method, engine))
     seconds = time.perf_counter() - start
     per_gap = per_gap_errors(result, scored.truth_position, scored.gap_mask)
     per_gap.insert(0, "method", method)

@@ -198,7 +198,7 @@ def run_experiment(config: RunConfig, *, progress: bool = False) -> ExperimentRe
         for seed in config.seeds:
             for scored in config.scored_recordings(seed):
                 recordings[scored.name] = scored
-                runs[scored.name] = [run_method(scored, method, options)
+                runs[scored.name] = [run_method(scored, method, options, config.engine)
                                      for method, options in config.methods.items()]
             bar.update()
     return ExperimentResult(config=config, recordings=recordings, runs=runs,
@@ -272,7 +272,8 @@ def execute_task(task: SweepTask) -> dict[str, Any]:
         recordings, data_seconds = _recordings(task.config, task.seed)
         run_start = time.perf_counter()
         options = task.config.methods[task.method]
-        runs = [run_method(scored, task.method, options) for scored in recordings]
+        runs = [run_method(scored, task.method, options, task.config.engine)
+                for scored in recordings]
     except Exception as error:  # reported with the run; the sweep goes on
         return {**identity, "error": _error_text(error)}
     metrics = metrics_from_errors(GapErrors.concatenate(run.errors for run in runs))

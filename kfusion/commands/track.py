@@ -10,7 +10,9 @@ import numpy as np
 from kfusion.calibration.diagnosis import diagnose
 from kfusion.config import check_methods
 from kfusion.conventions import STATUSES
+from kfusion.experiment import engine_options
 from kfusion.guards import YamlError, load_yaml_text, short_repr
+from kfusion.kalman.engines import DEFAULT_ENGINE, ENGINES
 from kfusion.methods import METHODS, track_with_method
 from kfusion.recording import read_recording
 from kfusion.track_file import write_track_csv
@@ -57,6 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set", action="append", metavar="KEY=VALUE", dest="options",
                         help="override one of the method's parameters (repeatable), "
                         "e.g. --set max_bridge_s=0.5")
+    parser.add_argument("--engine", choices=ENGINES, default=DEFAULT_ENGINE,
+                        help="Kalman filter engine for --method kalman: compiled (numba, "
+                        "default) or filterpy (the reference)")
     parser.add_argument("--zeros-occluded", action="store_true",
                         help="read a mocap position of exactly (0, 0, 0) as occluded")
     parser.add_argument("--force", action="store_true",
@@ -69,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
     diagnosis = diagnose(recording)
     if not diagnosis.ok and not args.force:
         raise ValueError(f"{args.folder}: {diagnosis.problems[0]} (or pass --force)")
-    result = track_with_method(recording, args.method, **parse_options(args.options, args.method))
+    result = track_with_method(recording, args.method, **parse_options(args.options, args.method),
+                               **engine_options(args.method, args.engine))
     path = write_track_csv(result, args.out)
     counts = {status: int(np.sum(result.status == status)) for status in STATUSES}
     summary = ", ".join(f"{count} {status}" for status, count in counts.items())

@@ -871,8 +871,8 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     rows = len(mocap_t)
     order = np.array([(stream, row) for _, stream, row in events], dtype=np.int64
                      ).reshape(-1, 2)
-    accelerometer = _kernel_array(accelerometer, float)
-    gyroscope = _kernel_array(gyroscope, float)
+    acceleration_rows = _kernel_array(accelerometer, float)
+    rate_rows = _kernel_array(gyroscope, float)
     finite = np.isfinite(accelerometer).all(axis=1) & np.isfinite(gyroscope).all(axis=1)
     out_x = np.full((rows, size), np.nan)
     out_P = np.full((rows, size, size), np.nan)
@@ -884,10 +884,10 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     counters = np.zeros(len(COUNTER_INDEX), dtype=np.int64)
     failed = filter_events(
         _kernel_array(order[:, 0], np.int64), _kernel_array(order[:, 1], np.int64),
-        _kernel_array(imu_t, float), accelerometer, gyroscope, finite,
+        _kernel_array(imu_t, float), acceleration_rows, rate_rows, finite,
         _kernel_array(mocap_t, float), _kernel_array(mocap_position, float),
-        _kernel_array(mocap_quaternion, float), _kernel_array(visible, bool), config, size, out_x, out_P, out_H,
-        out_offset, out_outcome, out_nis, out_dead_reckoned, counters)
+        _kernel_array(mocap_quaternion, float), _kernel_array(visible, bool), config, size,
+        out_x, out_P, out_H, out_offset, out_outcome, out_nis, out_dead_reckoned, counters)
     names = np.array(OUTCOME_NAMES + ("",), dtype=object)
     return KernelRun(out_x, out_P, out_H, out_offset, names[out_outcome].astype(str), out_nis,
                      out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(),
