@@ -58,7 +58,7 @@ class MethodRun:
                 "imu_per_second": self.imu_samples / self.seconds if self.seconds else np.nan}
 
 
-ENGINE_METHODS = ("kalman",)
+ENGINE_METHODS = ("kalman", "smoother")
 """Methods that take an ``engine`` (:mod:`kfusion.kalman.engines`)."""
 
 

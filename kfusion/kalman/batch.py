@@ -288,12 +288,14 @@ def check_engine(engine: str) -> str:
     return engine
 
 
-def _compiled_rows(recording: Recording, fusion: KalmanFusion) -> _RowRecorder | None:
+def compiled_rows(recording: Recording, fusion: KalmanFusion, *, smoothing: bool = False
+                  ) -> tuple[_RowRecorder, Any] | None:
     """The per-row arrays of :func:`process_recording` computed by the compiled whole-loop
     kernel (:func:`kfusion.kalman.compiled.filter_events`) over the same merged events, with
     ``fusion``'s configuration (``fusion`` itself is not run). None when the kernel stops at an
     event it cannot handle (an out-of-order stamp): the caller runs the filterpy engine, whose
-    error names it."""
+    error names it. Returns the recorder and the kernel's run (:class:`kfusion.kalman.compiled.
+    KernelRun`, with the smoother's per-row predictions and transitions when ``smoothing``)."""
     from kfusion.kalman import compiled  # numba loads on first use of the engine
 
     recording = on_mocap_clock(recording)
@@ -303,7 +305,7 @@ def _compiled_rows(recording: Recording, fusion: KalmanFusion) -> _RowRecorder |
         events.pop()
     run = compiled.run_kernel(imu.t, imu.accelerometer, imu.gyroscope, mocap.t, mocap.position,
                               mocap.quaternion, mocap.visible, events, fusion.kernel_config(),
-                              fusion.size)
+                              fusion.size, smoothing)
     if run.failed_event >= 0:
         return None
     recorder = _RowRecorder(fusion, len(mocap))
@@ -312,7 +314,7 @@ def _compiled_rows(recording: Recording, fusion: KalmanFusion) -> _RowRecorder |
     recorder.outcome = run.outcome.astype(object)
     recorder.nis, recorder.dead_reckoned = run.nis, run.dead_reckoned
     recorder.counters = run.counters
-    return recorder
+    return recorder, run
 
 
 def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
@@ -329,10 +331,10 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
     params = resolve_parameters(recording, params, overrides)
     fusion = make_fusion(recording, params)
     watcher = make_monitor(recording, params, monitor)
-    recorder = None
-    if engine == "compiled" and watcher is None:
-        recorder = _compiled_rows(recording, fusion)
-    if recorder is None:
+    rows = compiled_rows(recording, fusion) if engine == "compiled" and watcher is None else None
+    if rows is not None:
+        recorder = rows[0]
+    else:
         recorder = _RowRecorder(fusion, len(recording.mocap), watcher)
         process_recording(recording, fusion, recorder.record, watcher)
         recorder.finish()

@@ -444,7 +444,15 @@ def reset(x, P, orientation, scalars, counters):
 
 
 @njit(cache=True)
-def advance_without_imu(t, x, P, orientation, scalars, config, counters):
+def accumulate_transition(interval, F):
+    """``Phi <- F Phi``: the product of the transitions since the last mocap row, which the
+    smoother needs (``cov(x_k, x_{k+1|k}) = P_k Phi^T``). An empty ``interval``: not kept."""
+    if interval.shape[0] > 0:
+        interval[:, :] = matmul(F, interval)
+
+
+@njit(cache=True)
+def advance_without_imu(t, x, P, orientation, scalars, config, counters, interval):
     """No IMU over [time, t]: ``p' = p + v dt``, ``v' = v``, white acceleration q::
 
         Q_pp = q^2 dt^3/3, Q_pv = q^2 dt^2/2, Q_vv = q^2 dt, Q_bb = sigma_b^2 dt
@@ -465,6 +473,7 @@ def advance_without_imu(t, x, P, orientation, scalars, config, counters):
             Q[v + i, v + i] = q2 * dt
             Q[b + i, b + i] = walk2 * dt
         covariance_predict(x, P, F, np.zeros((n, 9)), np.zeros(9), Q)
+        accumulate_transition(interval, F)
         if scalars[OUTAGE_SINCE_FIX] == 0.0:
             counters[14] += 1
         scalars[OUTAGE_SINCE_FIX] = 1.0
@@ -484,7 +493,7 @@ def squared_distance(a, b):
 
 @njit(cache=True)
 def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config,
-                     counters):
+                     counters, interval):
     """Predict over [time, t] with the IMU (:meth:`KalmanFusion._advance_with_imu`): the
     specific force and rate linear between the interval's ends (or the held sample held),
     the orientation propagated, then ``x <- F x + B u``, ``P <- F P F^T + Q`` with
@@ -540,13 +549,15 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
             u[6:9] = config[C_GRAVITY:C_GRAVITY + 3]
             Q = process_noise(dt, n, acceleration_variance, bias_variance, config)
             covariance_predict(x, P, F, B, u, Q)
+            accumulate_transition(interval, F)
         if not state_finite(x, P, orientation):
             reset(x, P, orientation, scalars, counters)
     scalars[TIME] = t
 
 
 @njit(cache=True)
-def advance(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config, counters):
+def advance(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config, counters,
+            interval):
     """Propagate to t: with the IMU where it covers the interval, the no-IMU model
     after (:func:`kfusion.streamhealth.imu_interval_split`)."""
     if math.isnan(scalars[TIME]):
@@ -566,11 +577,11 @@ def advance(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config,
     if covered < t:
         if covered > state_time:
             advance_with_imu(covered, False, f_end, omega_end, x, P, orientation, scalars,
-                             config, counters)
-        advance_without_imu(t, x, P, orientation, scalars, config, counters)
+                             config, counters, interval)
+        advance_without_imu(t, x, P, orientation, scalars, config, counters, interval)
         return
     advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config,
-                     counters)
+                     counters, interval)
 
 
 @njit(cache=True)
@@ -587,7 +598,8 @@ def limit(sample, sensor_range):
 
 
 @njit(cache=True)
-def predict_step(stamp, f_raw, omega_raw, x, P, orientation, scalars, config, counters):
+def predict_step(stamp, f_raw, omega_raw, x, P, orientation, scalars, config, counters,
+                 interval):
     """One finite IMU sample with a stamp after the last (:meth:`KalmanFusion.
     _predict_valid`): reject _IMPLAUSIBLE values, clip saturated ones, advance to
     ``t = stamp - latency`` with the first-order hold, hold the sample."""
@@ -611,7 +623,7 @@ def predict_step(stamp, f_raw, omega_raw, x, P, orientation, scalars, config, co
         if t < scalars[TIME]:
             counters[4] += 1
     else:
-        advance(t, True, f, omega, x, P, orientation, scalars, config, counters)
+        advance(t, True, f, omega, x, P, orientation, scalars, config, counters, interval)
     scalars[ACCELEROMETER:ACCELEROMETER + 3] = f
     scalars[GYROSCOPE:GYROSCOPE + 3] = omega
     scalars[ACCELEROMETER_EXTRA] = acc_extra
@@ -686,20 +698,22 @@ def initialise(t, z, H, offset, x, P, scalars, config, counters):
 
 @njit(cache=True)
 def update_step(t, visible, z, q_global_body, x, P, orientation, scalars, config,
-                counters):
+                counters, interval, prior_x, prior_P):
     """One mocap frame (:meth:`KalmanFusion._update_valid`): advance to t holding the
     sample, gate the orientation, initialise or gate and fuse the position::
 
         y = z - c - H x,  S = H P H^T + R,  NIS = y^T S^-1 y
         gated if NIS > gate and |y| > gate_min while the prediction is valid
-    Returns (outcome code, NIS)."""
+    Returns (outcome code, NIS, True when the fix was fused into a prediction, whose state and
+    covariance are then in ``prior_x``, ``prior_P``)."""
     n = x.shape[0]
     advance(t, False, scalars[ACCELEROMETER:ACCELEROMETER + 3],
-            scalars[GYROSCOPE:GYROSCOPE + 3], x, P, orientation, scalars, config, counters)
+            scalars[GYROSCOPE:GYROSCOPE + 3], x, P, orientation, scalars, config, counters,
+        interval)
     scalars[LAST_FRAME_FUSED] = 0.0
     if not visible:
         counters[8] += 1
-        return _OCCLUDED, math.nan
+        return _OCCLUDED, math.nan, False
     has_orientation = True
     q_global_imu = normalise(quaternion_product(q_global_body,
                                                 config[C_Q_BODY_IMU:C_Q_BODY_IMU + 4]))
@@ -718,7 +732,7 @@ def update_step(t, visible, z, q_global_body, x, P, orientation, scalars, config
         if not has_orientation:
             counters[12] += 1
             counters[8] += 1
-            return _OCCLUDED, math.nan
+            return _OCCLUDED, math.nan, False
         orientation[:] = 0.0
         orientation[0:4] = normalise(q_global_imu)
         orientation[7] = config[C_ORIENTATION_VARIANCE]
@@ -729,7 +743,7 @@ def update_step(t, visible, z, q_global_body, x, P, orientation, scalars, config
                            config)
     if scalars[INITIALISED_FLAG] == 0.0:
         initialise(t, z, H, offset, x, P, scalars, config, counters)
-        return _INITIALISED, math.nan
+        return _INITIALISED, math.nan, False
     R = np.eye(3) * config[C_POSITION_NOISE] ** 2
     y = z - offset - matvec(H, x)
     S = matmul(matmul(H, P), H.T.copy()) + R
@@ -744,13 +758,13 @@ def update_step(t, visible, z, q_global_body, x, P, orientation, scalars, config
     y_squared = y[0] * y[0] + y[1] * y[1] + y[2] * y[2]
     if not (math.isfinite(nis) and math.isfinite(y_squared)):
         counters[9] += 1
-        return _GATED, nis
+        return _GATED, nis, False
     since = math.inf if math.isnan(scalars[LAST_FIX]) else t - scalars[LAST_FIX]
     kind = _ACCEPTED
     failed = nis > config[C_GATE] and y_squared > config[C_GATE_MIN] ** 2
     if failed and since <= config[C_MAX_BRIDGE]:
         counters[9] += 1
-        return _GATED, nis
+        return _GATED, nis, False
     if since >= config[C_REACQUIRE]:
         kind = _REACQUIRED
         if nis > config[C_GATE]:
@@ -762,6 +776,8 @@ def update_step(t, visible, z, q_global_body, x, P, orientation, scalars, config
             for i in range(3):
                 P[p + i, p + i] += position_variance
                 P[v + i, v + i] += velocity_variance
+    prior_x[:] = x
+    prior_P[:, :] = P
     covariance_update(x, P, z - offset, H, R)
     if has_orientation:
         orientation_correct(orientation, q_global_imu, config)
@@ -769,17 +785,22 @@ def update_step(t, visible, z, q_global_body, x, P, orientation, scalars, config
     mark_fix(t, scalars, counters)
     if kind == _REACQUIRED:
         counters[10] += 1
-    return kind, nis
+    return kind, nis, True
 
 
 @njit(cache=True)
 def filter_events(stream, index, imu_t, accelerometer, gyroscope, imu_finite, mocap_t,
                   mocap_position, mocap_quaternion, visible, config, size, out_x, out_P,
-                  out_H, out_offset, out_outcome, out_nis, out_dead_reckoned, counters):
+                  out_H, out_offset, out_outcome, out_nis, out_dead_reckoned, counters,
+                  out_x_predicted, out_P_predicted, out_transition):
     """The whole batch loop over a recording's merged events (stream 0 IMU, 1 mocap; index
     its row). Fills one row of the outputs per mocap row. Returns -1, or the event number
     the kernel cannot handle (a non-increasing stamp that is not an identical duplicate):
-    the caller then runs the filterpy engine, whose error message names it."""
+    the caller then runs the filterpy engine, whose error message names it.
+
+For the smoother (``out_transition`` with m rows; empty (0, n, n) arrays otherwise) it also
+keeps per row the prediction the row's fix was fused into (the filtered state where none
+was) and the product of the transitions since the previous row."""
     x = np.zeros(size)
     P = np.eye(size)
     orientation = np.zeros(15)
@@ -790,6 +811,10 @@ def filter_events(stream, index, imu_t, accelerometer, gyroscope, imu_finite, mo
     scalars[INITIALISED_FLAG] = 0.0
     scalars[LAST_FRAME_FUSED] = 0.0
     scalars[OUTAGE_SINCE_FIX] = 0.0
+    smoothing = out_transition.shape[0] > 0
+    interval = np.eye(size) if smoothing else np.zeros((0, 0))
+    prior_x = np.zeros(size)
+    prior_P = np.zeros((size, size))
     for event in range(stream.shape[0]):
         row = index[event]
         if stream[event] == 0:
@@ -809,14 +834,14 @@ def filter_events(stream, index, imu_t, accelerometer, gyroscope, imu_finite, mo
                     continue
                 return event
             predict_step(stamp, accelerometer[row], gyroscope[row], x, P, orientation,
-                         scalars, config, counters)
+                         scalars, config, counters, interval)
             continue
         t = mocap_t[row]
         if not visible[row] and not math.isnan(scalars[TIME]) and t < scalars[TIME]:
             return event
-        kind, nis = update_step(t, visible[row], mocap_position[row],
-                                mocap_quaternion[row], x, P, orientation, scalars, config,
-                                counters)
+        kind, nis, fused = update_step(t, visible[row], mocap_position[row],
+                                       mocap_quaternion[row], x, P, orientation, scalars,
+                                       config, counters, interval, prior_x, prior_P)
         out_outcome[row] = kind
         out_nis[row] = nis
         out_dead_reckoned[row] = t <= dead_reckoning_until(scalars, config)
@@ -826,7 +851,34 @@ def filter_events(stream, index, imu_t, accelerometer, gyroscope, imu_finite, mo
             H, offset = output_map(orientation[0:4].copy(), size, config)
             out_H[row] = H
             out_offset[row] = offset
+            if smoothing:
+                out_x_predicted[row] = prior_x if fused else x
+                out_P_predicted[row] = prior_P if fused else P
+                out_transition[row] = interval
+        if smoothing:
+            interval[:, :] = np.eye(size)
     return -1
+
+
+
+@njit(cache=True)
+def rts_backward(x_filtered, P_filtered, x_predicted, P_predicted, transitions):
+    """RTS backward pass over rows 0..m-1 (:func:`kfusion.kalman.smoother.rts_backward`)::
+
+        C_k   = P_k Phi_{k+1}^T P_{k+1|k}^-1    (solved: C^T = P_{k+1|k}^-1 Phi P_k)
+        x_k^s = x_k + C_k (x_{k+1}^s - x_{k+1|k})
+        P_k^s = P_k + C_k (P_{k+1}^s - P_{k+1|k}) C_k^T,  symmetrised
+    Shapes (m, n) and (m, n, n); returns the smoothed (x, P)."""
+    x_smoothed = x_filtered.copy()
+    P_smoothed = P_filtered.copy()
+    for k in range(x_filtered.shape[0] - 2, -1, -1):
+        C = np.linalg.solve(P_predicted[k + 1], matmul(transitions[k + 1], P_filtered[k])).T
+        C = C.copy()
+        x_smoothed[k] = x_filtered[k] + matvec(C, x_smoothed[k + 1] - x_predicted[k + 1])
+        P = P_filtered[k] + matmul(matmul(C, P_smoothed[k + 1] - P_predicted[k + 1]),
+                                   C.T.copy())
+        P_smoothed[k] = 0.5 * (P + P.T)
+    return x_smoothed, P_smoothed
 
 
 # ---------------------------------------------------------------------------------------------
@@ -852,6 +904,10 @@ class KernelRun:
         self.dead_reckoned = dead_reckoned
         self.counters = counters
         self.failed_event = failed_event
+        # smoother support (filled by run_kernel(smoothing=True))
+        self.x_predicted = np.zeros((0, x.shape[1]))
+        self.P_predicted = np.zeros((0, x.shape[1], x.shape[1]))
+        self.transitions = np.zeros((0, x.shape[1], x.shape[1]))
 
 
 def _kernel_array(values: NDArray[np.generic], dtype: type) -> NDArray[np.generic]:
@@ -864,7 +920,7 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
                gyroscope: NDArray[np.float64], mocap_t: NDArray[np.float64],
                mocap_position: NDArray[np.float64], mocap_quaternion: NDArray[np.float64],
                visible: NDArray[np.bool_], events: list[tuple[float, int, int]],
-               config: NDArray[np.float64], size: int) -> KernelRun:
+               config: NDArray[np.float64], size: int, smoothing: bool = False) -> KernelRun:
     """Run :func:`filter_events` over merged ``events`` (``(t, stream, row)``,
     :func:`kfusion.kalman.events.merge_events`). Shapes: IMU (n,), (n, 3), (n, 3); mocap (m,),
     (m, 3), (m, 4), (m,); ``config`` from :func:`pack_config`; n states ``size``."""
@@ -882,13 +938,20 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     out_nis = np.full(rows, np.nan)
     out_dead_reckoned = np.zeros(rows, dtype=bool)
     counters = np.zeros(len(COUNTER_INDEX), dtype=np.int64)
+    kept = rows if smoothing else 0
+    x_predicted = np.full((kept, size), np.nan)
+    P_predicted = np.full((kept, size, size), np.nan)
+    transitions = np.full((kept, size, size), np.nan)
     failed = filter_events(
         _kernel_array(order[:, 0], np.int64), _kernel_array(order[:, 1], np.int64),
         _kernel_array(imu_t, float), acceleration_rows, rate_rows, finite,
         _kernel_array(mocap_t, float), _kernel_array(mocap_position, float),
         _kernel_array(mocap_quaternion, float), _kernel_array(visible, bool), config, size,
-        out_x, out_P, out_H, out_offset, out_outcome, out_nis, out_dead_reckoned, counters)
+        out_x, out_P, out_H, out_offset, out_outcome, out_nis, out_dead_reckoned, counters,
+        x_predicted, P_predicted, transitions)
     names = np.array(OUTCOME_NAMES + ("",), dtype=object)
-    return KernelRun(out_x, out_P, out_H, out_offset, names[out_outcome].astype(str), out_nis,
-                     out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(),
-                                                 strict=True)), int(failed))
+    run = KernelRun(out_x, out_P, out_H, out_offset, names[out_outcome].astype(str), out_nis,
+                    out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(), strict=True)),
+                    int(failed))
+    run.x_predicted, run.P_predicted, run.transitions = x_predicted, P_predicted, transitions
+    return run

@@ -46,6 +46,8 @@ from kfusion.conventions import BRIDGED, TRACKED
 from kfusion.kalman.batch import (
     _RowRecorder,
     apply_monitor,
+    check_engine,
+    compiled_rows,
     make_fusion,
     make_monitor,
     point_estimates,
@@ -55,6 +57,7 @@ from kfusion.kalman.batch import (
     row_statuses,
     status_from_fixes,
 )
+from kfusion.kalman.engines import DEFAULT_ENGINE
 from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, USED_OUTCOMES, UpdateOutcome
 from kfusion.kalman.parameters import KalmanParameters
 from kfusion.monitor import (
@@ -196,7 +199,7 @@ def nearest_fix_distance(t: NDArray[np.float64], fixed: NDArray[np.bool_]
 
 
 def holdout_scales(recording: Recording, params: KalmanParameters, monitor: MonitorParameters,
-                   seed: int = 0) -> HorizonScales | None:
+                   seed: int = 0, engine: str = DEFAULT_ENGINE) -> HorizonScales | None:
     """The smoother's shadow gaps: hide visible fixes in gaps as long as the recording's own
     (those up to ``max_bridge_s``), smooth the copy, and collect per gap the variance scale
     each hidden fix needed (:func:`kfusion.monitor.required_scale`) by its distance to the
@@ -220,7 +223,7 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
                       spacing=0.5)
     if not hidden.gap_mask.any():
         return None
-    run = run_smoother(hidden.recording, params, monitor=None)
+    run = run_smoother(hidden.recording, params, monitor=None, engine=engine)
     fixed = run.result.status == TRACKED
     assert run.output_matrix is not None
     horizon = nearest_fix_distance(mocap.t, fixed)
@@ -244,10 +247,14 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
 
 def run_smoother(recording: Recording, params: KalmanParameters | None = None, *,
                  monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008 (frozen)
-                 **overrides: Any) -> SmootherRun:
+                 engine: str = DEFAULT_ENGINE, **overrides: Any) -> SmootherRun:
     """Forward :class:`KalmanFusion` pass storing rows, then the RTS backward pass; with a
     ``monitor`` (default), the forward filter's online monitor and the hold-out check of the
-    smoothed bound (module docstring)."""
+    smoothed bound (module docstring). ``engine``: ``compiled`` runs both passes as numba
+    kernels (:func:`kfusion.kalman.compiled.filter_events`, :func:`~kfusion.kalman.compiled.
+    rts_backward`) when there is no monitor (which watches a filter event by event);
+    ``filterpy`` runs :class:`KalmanFusion` and the numpy backward pass."""
+    check_engine(engine)
     params = resolve_parameters(recording, params, overrides)
     fusion = make_fusion(recording, params)
     watcher = make_monitor(recording, params, monitor)
@@ -258,6 +265,16 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     P_predicted = np.full((m, size, size), np.nan)
     transitions = np.full((m, size, size), np.nan)
     fusion._interval = np.eye(size)
+    backward = rts_backward
+    rows = (compiled_rows(recording, fusion, smoothing=True)
+            if engine == "compiled" and watcher is None else None)
+    if rows is not None:
+        from kfusion.kalman import compiled
+
+        recorder, kernel_run = rows
+        x_predicted, P_predicted = kernel_run.x_predicted, kernel_run.P_predicted
+        transitions = kernel_run.transitions
+        backward = compiled.rts_backward
 
     def on_row(row: int, outcome: UpdateOutcome) -> None:
         recorder.record(row, outcome)
@@ -269,13 +286,15 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
             transitions[row] = fusion._interval
         fusion._interval = np.eye(size)
 
-    process_recording(recording, fusion, on_row, watcher)
+    if rows is None:
+        process_recording(recording, fusion, on_row, watcher)
+        recorder.finish()
     x_filtered, P_filtered = recorder.x, recorder.P
     x_smoothed = np.full((m, size), np.nan)
     P_smoothed = np.full((m, size, size), np.nan)
     for first, stop in initialised_segments(recorder.outcome.astype(str),
                                             recorder.initialised):
-        x_smoothed[first:stop], P_smoothed[first:stop] = rts_backward(
+        x_smoothed[first:stop], P_smoothed[first:stop] = backward(
             x_filtered[first:stop], P_filtered[first:stop], x_predicted[first:stop],
             P_predicted[first:stop], transitions[first:stop])
     t = np.array(recording.mocap.t)
@@ -297,7 +316,8 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     status = smoothed_status
     position, variance = point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
                                          recorder.output_offset)
-    holdout = None if monitor is None else holdout_scales(recording, params, monitor)
+    holdout = None if monitor is None else holdout_scales(recording, params, monitor,
+                                                              engine=engine)
     if holdout is not None:
         bins = len(holdout.params.horizon_edges_s)
         table = np.broadcast_to(holdout.scale_table(), (m, bins))
@@ -322,7 +342,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
 
 def smooth_recording(recording: Recording, params: KalmanParameters | None = None, *,
                      monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008
-                     **overrides: Any) -> TrackResult:
+                     engine: str = DEFAULT_ENGINE, **overrides: Any) -> TrackResult:
     """Method ``smoother``: fixed-interval RTS estimate at every mocap row (offline gap filling).
 
     Args:
@@ -334,4 +354,4 @@ def smooth_recording(recording: Recording, params: KalmanParameters | None = Non
         TrackResult: smoothed position (m), 1-sigma per axis from the smoothed P (m), status
         (:func:`smoother_status`) and time since the last accepted fix (s, forward in time).
     """
-    return run_smoother(recording, params, monitor=monitor, **overrides).result
+    return run_smoother(recording, params, monitor=monitor, engine=engine, **overrides).result
