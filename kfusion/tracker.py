@@ -549,15 +549,20 @@ class _KalmanEstimator:
     has_covariance = True
 
     def __init__(self, imu_to_body: NDArray, gravity: NDArray, params: Any,
-                 lever_arm: NDArray | None) -> None:
+                 lever_arm: NDArray | None, engine: str = "filterpy") -> None:
         from kfusion.kalman import KalmanFusion
         from kfusion.monitor import ConsistencyMonitor
 
-        self._fusion = KalmanFusion(imu_to_body, gravity, params, lever_arm=lever_arm)
+        fusion_class: Any = KalmanFusion
+        if engine == "compiled":  # numba loads here, on first use
+            from kfusion.kalman.compiled_fusion import CompiledFusion
+
+            fusion_class = CompiledFusion
+        self._fusion = fusion_class(imu_to_body, gravity, params, lever_arm=lever_arm)
         # the consistency monitor (kfusion.monitor) with its shadow filter: scales the bound in
         # gaps as the shadow gaps showed it must, or refuses to bridge (read() gives None)
         self.monitor = ConsistencyMonitor(
-            KalmanFusion(imu_to_body, gravity, params, lever_arm=lever_arm), gravity=gravity)
+            fusion_class(imu_to_body, gravity, params, lever_arm=lever_arm), gravity=gravity)
         self.max_bridge_s = float(params.max_bridge_s)
         self.imu_dropout_s = float(params.imu_dropout_s)
         self.accelerometer_range = float(params.accelerometer_range)
@@ -718,6 +723,9 @@ class Tracker:
             ``time.monotonic`` when the samples are stamped with it). With it,
             :meth:`estimate` without ``t`` is the estimate now; without it, :meth:`estimate`
             needs ``t`` (an estimate is never presented as current when it is old).
+        engine: the Kalman filter's engine: ``filterpy`` (:class:`kfusion.kalman.KalmanFusion`,
+            default) or ``compiled`` (:class:`kfusion.kalman.compiled_fusion.CompiledFusion`:
+            numba step functions, the same results within rounding; numba loads on first use).
 
     Thread safety: every public method holds the tracker's lock, and :meth:`estimate` and
     :attr:`health` do not change the state, so one thread may push while others read.
@@ -739,6 +747,7 @@ class Tracker:
         imu_time_offset: float = 0.0,
         imu_clock_drift_ppm: float = 0.0,
         clock: Callable[[], float] | None = None,
+        engine: str = "filterpy",
     ) -> None:
         imu_clock = (_time("Tracker", imu_time_offset), _time("Tracker", imu_clock_drift_ppm))
         if not (math.isfinite(imu_clock[0]) and abs(imu_clock[1]) <= MAX_CLOCK_DRIFT_PPM):
@@ -764,6 +773,10 @@ class Tracker:
         lever = None if lever_arm is None else _vector("Tracker", "lever_arm", lever_arm, 3, "m")
         if lever is not None and not np.isfinite(lever).all():
             raise ValueError("Tracker: lever_arm: expected 3 finite numbers (m), got non-finite")
+        if engine not in ("compiled", "filterpy"):  # kfusion.kalman.engines.ENGINES
+            raise ValueError(f"Tracker: engine: expected 'compiled' or 'filterpy', got "
+                             f"{short_repr(engine)}")
+        self.engine = engine
         if not isinstance(method, str) or method not in METHODS:
             raise ValueError(f"Tracker: method: expected one of {list(METHODS)}, got "
                              f"{short_repr(method)}")
@@ -887,7 +900,7 @@ class Tracker:
     def _new_estimator(self) -> _Estimator:
         if self.method == "kalman":
             return _KalmanEstimator(self._imu_to_body, self._gravity, self.params,
-                                    self._lever_arm)
+                                    self._lever_arm, self.engine)
         return _BaselineEstimator(self._imu_to_body, self.params,
                                   self.imu_profile.accelerometer_range)
 

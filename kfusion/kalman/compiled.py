@@ -697,8 +697,8 @@ def initialise(t, z, H, offset, x, P, scalars, config, counters):
 
 
 @njit(cache=True)
-def update_step(t, visible, z, q_global_body, x, P, orientation, scalars, config,
-                counters, interval, prior_x, prior_P):
+def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation, scalars,
+                config, counters, interval, prior_x, prior_P):
     """One mocap frame (:meth:`KalmanFusion._update_valid`): advance to t holding the
     sample, gate the orientation, initialise or gate and fuse the position::
 
@@ -714,10 +714,12 @@ def update_step(t, visible, z, q_global_body, x, P, orientation, scalars, config
     if not visible:
         counters[8] += 1
         return _OCCLUDED, math.nan, False
-    has_orientation = True
-    q_global_imu = normalise(quaternion_product(q_global_body,
-                                                config[C_Q_BODY_IMU:C_Q_BODY_IMU + 4]))
-    if (orientation[14] != 0.0 and config[C_GATING] != 0.0
+    has_orientation = has_quaternion
+    q_global_imu = orientation[0:4].copy()
+    if has_quaternion:
+        q_global_imu = normalise(quaternion_product(q_global_body,
+                                                    config[C_Q_BODY_IMU:C_Q_BODY_IMU + 4]))
+    if (has_quaternion and orientation[14] != 0.0 and config[C_GATING] != 0.0
             and not math.isnan(scalars[LAST_ORIENTATION_FIX])
             and t - scalars[LAST_ORIENTATION_FIX] <= config[C_MAX_BRIDGE]):
         innovation = quaternion_log(quaternion_product(conjugate(orientation[0:4]),
@@ -840,8 +842,9 @@ was) and the product of the transitions since the previous row."""
         if not visible[row] and not math.isnan(scalars[TIME]) and t < scalars[TIME]:
             return event
         kind, nis, fused = update_step(t, visible[row], mocap_position[row],
-                                       mocap_quaternion[row], x, P, orientation, scalars,
-                                       config, counters, interval, prior_x, prior_P)
+                                       mocap_quaternion[row], True, x, P, orientation,
+                                       scalars, config, counters, interval, prior_x,
+                                       prior_P)
         out_outcome[row] = kind
         out_nis[row] = nis
         out_dead_reckoned[row] = t <= dead_reckoning_until(scalars, config)
@@ -859,6 +862,37 @@ was) and the product of the transitions since the previous row."""
             interval[:, :] = np.eye(size)
     return -1
 
+
+
+@njit(cache=True)
+def extrapolate(t, x, P, orientation, scalars, config):
+    """State, covariance and ``q_global_imu`` at t >= the state's time holding the last sample,
+    without changing the state (:meth:`KalmanFusion._extrapolate`): the orientation propagated
+    at the held rate, then ``x' = F x + B u``, ``P' = F P F^T + Q`` (symmetrised) with
+    ``u = [f; f; g]`` and the held sample's extra variance."""
+    dt = t - scalars[TIME]
+    if (dt <= 0.0 or math.isnan(scalars[ACCELEROMETER]) or orientation[14] == 0.0
+            or scalars[INITIALISED_FLAG] == 0.0):
+        return x.copy(), P.copy(), orientation[0:4].copy()
+    n = x.shape[0]
+    scratch = orientation.copy()
+    f = scalars[ACCELEROMETER:ACCELEROMETER + 3].copy()
+    omega = scalars[GYROSCOPE:GYROSCOPE + 3].copy()
+    R0 = rotation_matrix(scratch[0:4])
+    angle_variance = scratch[7]
+    orientation_propagate(scratch, omega, omega, dt, scalars[GYROSCOPE_EXTRA] * dt * dt, config)
+    R1 = rotation_matrix(scratch[0:4])
+    bias_variance = config[C_TILT_INFLATION] * (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]) * max(
+        scratch[7] - angle_variance, 0.0)
+    u = np.empty(9)
+    u[0:3] = f
+    u[3:6] = f
+    u[6:9] = config[C_GRAVITY:C_GRAVITY + 3]
+    Q = process_noise(dt, n, scalars[ACCELEROMETER_EXTRA], bias_variance, config)
+    F, B = interval_matrices(R0, R1, dt, n, config)
+    x_next = matvec(F, x) + matvec(B, u)
+    P_next = matmul(matmul(F, P), F.T.copy()) + Q
+    return x_next, 0.5 * (P_next + P_next.T), scratch[0:4].copy()
 
 
 @njit(cache=True)
