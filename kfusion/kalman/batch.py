@@ -317,6 +317,19 @@ def compiled_rows(recording: Recording, fusion: KalmanFusion, *, smoothing: bool
     return recorder, run
 
 
+def compiled_points(recorder: _RowRecorder, x: NDArray[np.float64] | None = None,
+                    P: NDArray[np.float64] | None = None
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`point_estimates` by the compiled engine (:func:`kfusion.kalman.compiled.
+    point_rows`) for the recorder's rows, or for states ``x``, ``P`` at its output maps."""
+    from kfusion.kalman import compiled
+
+    position, variance = compiled.point_rows(
+        recorder.output_matrix, recorder.x if x is None else x, recorder.output_offset,
+        recorder.P if P is None else P)
+    return position, variance
+
+
 def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
                monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008 (frozen)
                engine: str = DEFAULT_ENGINE, **overrides: Any) -> FilterRun:
@@ -340,8 +353,9 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
         recorder.finish()
     status, since = status_from_fixes(recording.mocap.t, recorder.fixed, recorder.initialised,
                                       params.max_bridge_s, recorder.dead_reckoned)
-    position, variance = point_estimates(recorder.x, recorder.P, recorder.output_matrix,
-                                         recorder.output_offset)
+    position, variance = (compiled_points(recorder) if rows is not None else
+                          point_estimates(recorder.x, recorder.P, recorder.output_matrix,
+                                          recorder.output_offset))
     scale = np.ones(len(status))
     if watcher is not None:
         status, variance, scale = apply_monitor(status, variance, recorder.scale_tables,

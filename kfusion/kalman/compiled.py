@@ -273,7 +273,8 @@ def covariance_predict(x, P, F, B, u, Q):
     """Kalman predict in place: ``x <- F x + B u``, ``P <- F P F^T + Q``, then
     symmetrised."""
     x[:] = matvec(F, x) + matvec(B, u)
-    P[:, :] = matmul(matmul(F, P), F.T.copy()) + Q
+    # F P F^T = F (F P)^T for a symmetric P: both products have the sparse F on the left
+    P[:, :] = matmul(F, matmul(F, P).T.copy()) + Q
     symmetrise(P)
 
 
@@ -862,6 +863,30 @@ was) and the product of the transitions since the previous row."""
             interval[:, :] = np.eye(size)
     return -1
 
+
+
+@njit(cache=True)
+def point_rows(output_matrix, x, offset, P):
+    """Rigid-body point ``H x + c`` (m, 3) and its variance per axis ``diag(H P H^T)`` (m, 3)
+    from per-row output maps (m, 3, n), states (m, n), offsets (m, 3) and covariances
+    (m, n, n) (:func:`kfusion.kalman.batch.point_estimates`); NaN rows stay NaN."""
+    rows, n = x.shape
+    position = np.empty((rows, 3))
+    variance = np.empty((rows, 3))
+    for row in range(rows):
+        for i in range(3):
+            total = 0.0
+            for j in range(n):
+                total += output_matrix[row, i, j] * x[row, j]
+            position[row, i] = total + offset[row, i]
+            total = 0.0
+            for j in range(n):
+                inner = 0.0
+                for k in range(n):
+                    inner += P[row, j, k] * output_matrix[row, i, k]
+                total += output_matrix[row, i, j] * inner
+            variance[row, i] = total
+    return position, variance
 
 
 @njit(cache=True)

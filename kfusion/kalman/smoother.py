@@ -47,6 +47,7 @@ from kfusion.kalman.batch import (
     _RowRecorder,
     apply_monitor,
     check_engine,
+    compiled_points,
     compiled_rows,
     make_fusion,
     make_monitor,
@@ -304,8 +305,9 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     # a gap the IMU did not cover (the forward pass's no-IMU rows) is lost for the smoother too
     smoothed_status = smoother_status(t, fixed, params.max_bridge_s, recorder.dead_reckoned)
 
-    position, variance = point_estimates(x_filtered, P_filtered, recorder.output_matrix,
-                                         recorder.output_offset)
+    position, variance = (compiled_points(recorder) if rows is not None else
+                          point_estimates(x_filtered, P_filtered, recorder.output_matrix,
+                                          recorder.output_offset))
     if watcher is not None:
         filtered_status, variance, _ = apply_monitor(filtered_status, variance,
                                                      recorder.scale_tables, recorder.allowed,
@@ -314,8 +316,10 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     filtered = TrackResult(t=t, position=position, std=np.sqrt(variance),
                            status=filtered_status, time_since_fix=since, method="kalman")
     status = smoothed_status
-    position, variance = point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
-                                         recorder.output_offset)
+    position, variance = (compiled_points(recorder, x_smoothed, P_smoothed)
+                          if rows is not None else
+                          point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
+                                          recorder.output_offset))
     holdout = None if monitor is None else holdout_scales(recording, params, monitor,
                                                               engine=engine)
     if holdout is not None:
