@@ -9,6 +9,7 @@ The kernels compile once per process (numba ``cache=True`` keeps the machine cod
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -229,3 +230,34 @@ def test_tracker_compiled_equals_filterpy(case: str) -> None:
     position, status = tracker_rows(recording, "filterpy", **overrides)
     assert fast_status == status
     np.testing.assert_allclose(fast_position, position, rtol=0, atol=TOLERANCE_M)
+
+
+@pytest.mark.parametrize("case", ["gated_and_reacquired", "broad_excerpt"])
+def test_compiled_with_the_monitor_equals_filterpy(case: str) -> None:
+    """With the consistency monitor (the default of ``kfusion track``) the compiled engine runs
+    step by step (CompiledFusion, also as the monitor's shadow filter): the same rows."""
+    build, overrides = CASES[case]
+    recording = build()
+    fast = run_filter(recording, engine="compiled", **overrides)
+    reference = run_filter(recording, engine="filterpy", **overrides)
+    assert fast.outcome.tolist() == reference.outcome.tolist()
+    assert fast.result.status.tolist() == reference.result.status.tolist()
+    np.testing.assert_allclose(fast.result.position, reference.result.position, rtol=0,
+                               atol=TOLERANCE_M)
+    np.testing.assert_allclose(fast.result.std, reference.result.std, rtol=1e-7, atol=1e-12)
+
+
+def test_track_command_engines_agree(tmp_path: Path) -> None:
+    """``kfusion track --engine compiled`` and ``--engine filterpy`` write the same rows."""
+    from kfusion.cli import main
+    from kfusion.track_file import read_track
+
+    folder = broad_excerpt()
+    outputs = {}
+    for engine in ("compiled", "filterpy"):
+        out = tmp_path / f"{engine}.csv"
+        assert main(["track", str(folder), "--engine", engine, "--out", str(out)]) == 0
+        outputs[engine] = read_track(out)
+    np.testing.assert_allclose(outputs["compiled"].position, outputs["filterpy"].position,
+                               rtol=0, atol=TOLERANCE_M)
+    assert outputs["compiled"].status.tolist() == outputs["filterpy"].status.tolist()

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,19 +47,30 @@ def resolve_parameters(recording: Recording, params: KalmanParameters | None,
     return dataclasses.replace(params, **overrides) if overrides else params
 
 
-def make_fusion(recording: Recording, params: KalmanParameters) -> KalmanFusion:
-    """A :class:`KalmanFusion` configured from the recording's metadata."""
+def make_fusion(recording: Recording, params: KalmanParameters, engine: str = "filterpy"
+                ) -> KalmanFusion:
+    """A :class:`KalmanFusion` (``engine`` filterpy) or a :class:`kfusion.kalman.
+    compiled_fusion.CompiledFusion` (compiled: the same interface) configured from the
+    recording's metadata."""
     info = recording.info
+    if engine == "compiled":
+        from kfusion.kalman.compiled_fusion import CompiledFusion  # numba loads here
+
+        compiled: Any = CompiledFusion(info.imu_to_body, info.gravity, params,
+                                       lever_arm=info.lever_arm)
+        return cast(KalmanFusion, compiled)  # the same public interface
     return KalmanFusion(info.imu_to_body, info.gravity, params, lever_arm=info.lever_arm)
 
 
 def make_monitor(recording: Recording, params: KalmanParameters,
-                 monitor: MonitorParameters | None) -> ConsistencyMonitor | None:
+                 monitor: MonitorParameters | None, engine: str = "filterpy"
+                 ) -> ConsistencyMonitor | None:
     """The consistency monitor of a run (None when ``monitor`` is None), with its own shadow
     filter built like the main one."""
     if monitor is None:
         return None
-    return ConsistencyMonitor(make_fusion(recording, params), monitor, recording.info.gravity)
+    return ConsistencyMonitor(make_fusion(recording, params, engine), monitor,
+                              recording.info.gravity)
 
 
 def process_recording(recording: Recording, fusion: KalmanFusion,
@@ -86,10 +97,12 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
     events = merge_events(stamps, mocap.t.tolist(), fusion.params.imu_latency_s)
     while events and events[-1][1] == IMU_STREAM:
         events.pop()
+    fast = type(fusion) is KalmanFusion  # its validated internals; other engines: public API
     for t, stream, index in events:
         if stream == IMU_STREAM:
             stamp = stamps[index]
-            if finite[index] and (fusion._imu_stamp is None or stamp > fusion._imu_stamp):
+            if fast and finite[index] and (fusion._imu_stamp is None
+                                           or stamp > fusion._imu_stamp):
                 f, omega = accelerometer[index], gyroscope[index]
                 fusion._predict_valid(stamp, (f[0], f[1], f[2]), (omega[0], omega[1], omega[2]))
             else:  # the public path rejects, skips or raises with its message
@@ -99,8 +112,10 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
             continue
         position = mocap.position[index].copy() if visible[index] else None
         prior = fusion.estimate(t) if monitor is not None and monitor.has_gated_fix else None
-        if position is not None:
+        if position is not None and fast:
             outcome = fusion._update_valid(t, position, mocap.quaternion[index].copy())
+        elif position is not None:
+            outcome = fusion.update(t, position, mocap.quaternion[index].copy())
         else:
             outcome = fusion.update(t, None, None)
         if monitor is not None:
@@ -263,7 +278,7 @@ class _RowRecorder:
         if fusion.initialised:
             self.x[row] = fusion._kf.x
             self.P[row] = fusion._kf.P
-            H, offset = fusion._output_map(fusion._orientation.state.quaternion)
+            H, offset = fusion.output_map()
             self.output_matrix[row] = H
             self.output_offset[row] = offset
             if self.monitor is not None:
@@ -339,11 +354,14 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
     filter alone (the bound is then the profile's). ``engine``: ``compiled`` (the numba
     whole-loop kernel, :mod:`kfusion.kalman.compiled`) or ``filterpy`` (:class:`KalmanFusion`
     step by step). The consistency monitor watches a filter event by event, so with a monitor
-    the filterpy engine runs whatever ``engine`` says (the compiled kernel has no monitor)."""
+    the compiled engine runs step by step (:class:`kfusion.kalman.compiled_fusion.
+    CompiledFusion`, for the filter and the monitor's shadow filter)."""
     check_engine(engine)
     params = resolve_parameters(recording, params, overrides)
-    fusion = make_fusion(recording, params)
-    watcher = make_monitor(recording, params, monitor)
+    watcher = make_monitor(recording, params, monitor, engine)
+    # without a monitor the compiled engine runs the whole loop in one kernel; with one (it
+    # watches the filter event by event), the compiled step functions (CompiledFusion)
+    fusion = make_fusion(recording, params, "filterpy" if watcher is None else engine)
     rows = compiled_rows(recording, fusion) if engine == "compiled" and watcher is None else None
     if rows is not None:
         recorder = rows[0]

@@ -194,6 +194,11 @@ class CompiledFusion:
             x[model.VELOCITY].copy(), x[model.BIAS].copy(), self._lever_in_use(x),
             quaternion, P, status, since, last_nis)
 
+    def output_map(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(H (3, n), c (3,)): the rigid-body point is ``H x + c`` at the current orientation."""
+        H, offset = compiled.output_map(self._orientation[0:4].copy(), self.size, self._config)
+        return H, offset
+
     def _lever_in_use(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.estimates_lever_arm:
             return np.array(x[model.LEVER], dtype=float)

@@ -468,6 +468,10 @@ class KalmanFusion:
             x[model.VELOCITY].copy(), x[model.BIAS].copy(), self._lever_in_use(x),
             np.asarray(quaternion), P, status, since, self._last_nis)
 
+    def output_map(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(H (3, n), c (3,)): the rigid-body point is ``H x + c`` at the current orientation."""
+        return self._output_map(self._orientation.state.quaternion)
+
     def kernel_config(self) -> NDArray[np.float64]:
         """This filter's configuration packed for the compiled engine
         (:func:`kfusion.kalman.compiled.pack_config`; imports numba)."""
