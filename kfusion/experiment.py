@@ -67,13 +67,12 @@ def engine_options(method: str, engine: str | None) -> dict[str, Any]:
     return {"engine": engine} if engine is not None and method in ENGINE_METHODS else {}
 
 
-def run_method(scored: ScoredRecording, method: str, options: Mapping[str, Any] | None = None,
-               engine: str | None = None) -> MethodRun:
-    """Track ``scored.recording`` with ``method`` and score its gap samples. ``engine``:
-    ``compiled`` or ``filterpy`` for the methods of :data:`ENGINE_METHODS` (None: default)."""
+def run_method(scored: ScoredRecording, method: str, options: Mapping[str, Any] | None = None
+               ) -> MethodRun:
+    """Track ``scored.recording`` with ``method`` and score its gap samples (``options`` may
+    hold an ``engine``: :func:`engine_options`)."""
     start = time.perf_counter()
-    result = track_with_method(scored.recording, method, **dict(options or {}),
-                               **engine_options(method, engine))
+    result = track_with_method(scored.recording, method, **dict(options or {}))
     seconds = time.perf_counter() - start
     per_gap = per_gap_errors(result, scored.truth_position, scored.gap_mask)
     per_gap.insert(0, "method", method)

@@ -723,9 +723,11 @@ class Tracker:
             ``time.monotonic`` when the samples are stamped with it). With it,
             :meth:`estimate` without ``t`` is the estimate now; without it, :meth:`estimate`
             needs ``t`` (an estimate is never presented as current when it is old).
-        engine: the Kalman filter's engine: ``filterpy`` (:class:`kfusion.kalman.KalmanFusion`,
-            default) or ``compiled`` (:class:`kfusion.kalman.compiled_fusion.CompiledFusion`:
-            numba step functions, the same results within rounding; numba loads on first use).
+        engine: the Kalman filter's engine: ``compiled`` (default: :class:`kfusion.kalman.
+            compiled_fusion.CompiledFusion`, numba step functions; numba loads on the first
+            Tracker, and compiles once if its on-disk cache is empty) or ``filterpy``
+            (:class:`kfusion.kalman.KalmanFusion`, the reference; the same results within
+            rounding, tests/test_compiled_engine.py).
 
     Thread safety: every public method holds the tracker's lock, and :meth:`estimate` and
     :attr:`health` do not change the state, so one thread may push while others read.
@@ -747,7 +749,7 @@ class Tracker:
         imu_time_offset: float = 0.0,
         imu_clock_drift_ppm: float = 0.0,
         clock: Callable[[], float] | None = None,
-        engine: str = "filterpy",
+        engine: str = "compiled",
     ) -> None:
         imu_clock = (_time("Tracker", imu_time_offset), _time("Tracker", imu_clock_drift_ppm))
         if not (math.isfinite(imu_clock[0]) and abs(imu_clock[1]) <= MAX_CLOCK_DRIFT_PPM):
