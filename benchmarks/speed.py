@@ -112,6 +112,29 @@ def smoother_bytes_per_row(seconds: float) -> tuple[int, int, int]:
     return n, state, kept // len(run.x)
 
 
+def push_imu_median(engine: str, seconds: float) -> float:
+    """Median s per ``Tracker.push_imu`` (in order, a mocap frame pushed after its IMU
+    samples) over a recording of ``seconds``."""
+    from kfusion.tracker import Tracker
+
+    data = recording(seconds)
+    info = data.info
+    tracker = Tracker(info.imu_to_body, info.gravity, lever_arm=info.lever_arm, engine=engine)
+    imu, mocap = data.imu, data.mocap
+    durations = []
+    frame = 0
+    for row in range(len(imu.t)):
+        while frame < len(mocap.t) and mocap.t[frame] < imu.t[row]:
+            visible = bool(mocap.visible[frame])
+            tracker.push_mocap(mocap.t[frame], mocap.position[frame] if visible else None,
+                               mocap.quaternion[frame] if visible else None)
+            frame += 1
+        start = time.perf_counter()
+        tracker.push_imu(imu.t[row], imu.accelerometer[row], imu.gyroscope[row])
+        durations.append(time.perf_counter() - start)
+    return float(np.median(durations))
+
+
 COLD_SCRIPT = """
 import time
 start = time.perf_counter()
@@ -177,6 +200,10 @@ def main() -> None:
         rows.append((f"sweep, {count} runs of 60 s at 200 Hz, 2 processes, engine {engine}, "
                      "no monitor", f"{wall:.1f} s wall ({filtering:.1f} s filtering)",
                      f"1000 runs: {wall * 1000 / count:.0f} s (extrapolated)"))
+    for engine in ("compiled", "filterpy"):
+        median = push_imu_median(engine, 10.0)
+        rows.append((f"Tracker.push_imu in order, engine {engine}", f"median {median * 1e6:.0f} µs",
+                     ""))
     n, state, kept = smoother_bytes_per_row(seconds)
     rows.append((f"smoother memory per row ({n} states)", f"{kept} bytes",
                  f"{kept / state:.1f}x the state's {state} bytes (x, P)"))

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kfusion import streamhealth
-from kfusion.conventions import LOST, QUATERNION_NORM_TOLERANCE
+from kfusion.conventions import LOST
 from kfusion.kalman import compiled, model
 from kfusion.kalman.filter import (
     DUPLICATE,
@@ -29,6 +29,7 @@ from kfusion.kalman.filter import (
     KalmanFusion,
     UpdateOutcome,
     _vector,
+    checked_frame,
 )
 from kfusion.kalman.parameters import KalmanParameters
 
@@ -141,21 +142,7 @@ class CompiledFusion:
     def update(self, t: float, position: ArrayLike | None,
                quaternion: ArrayLike | None = None) -> UpdateOutcome:
         """:meth:`KalmanFusion.update` (same checks, outcomes and errors)."""
-        t = float(t)
-        if not math.isfinite(t):
-            raise ValueError(f"update: expected a finite time in s, got {t!r}")
-        time = self.time
-        if time is not None and t < time:
-            raise ValueError(f"update: timestamp {t!r} s is before the filter's time "
-                             f"({time!r} s); expected events in time order")
-        z = None if position is None else _vector(position, 3, "position")
-        q_global_body = None if quaternion is None else _vector(quaternion, 4, "quaternion")
-        if z is not None and not np.isfinite(z).all():
-            z = None
-        if q_global_body is not None:
-            norm = float(np.linalg.norm(q_global_body))
-            if not math.isfinite(norm) or abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
-                q_global_body = None
+        t, z, q_global_body = checked_frame(t, self.time, position, quaternion)
         kind, nis, _ = compiled.update_step(
             t, z is not None, np.zeros(3) if z is None else z.copy(),
             self._no_quaternion if q_global_body is None else q_global_body.copy(),

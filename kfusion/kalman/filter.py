@@ -240,6 +240,30 @@ def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
     return array
 
 
+def checked_frame(t: float, state_time: float | None, position: ArrayLike | None,
+                  quaternion: ArrayLike | None
+                  ) -> tuple[float, NDArray[np.float64] | None, NDArray[np.float64] | None]:
+    """A mocap frame checked for ``update`` (every engine's): ``(t, z, q_global_body)`` with z
+    None when occluded (None or any NaN) and the quaternion None when it is not a unit one (a
+    position-only fix). ValueError for a non-finite t, t before ``state_time`` or wrong
+    shapes."""
+    t = float(t)
+    if not math.isfinite(t):
+        raise ValueError(f"update: expected a finite time in s, got {t!r}")
+    if state_time is not None and t < state_time:
+        raise ValueError(f"update: timestamp {t!r} s is before the filter's time "
+                         f"({state_time!r} s); expected events in time order")
+    z = None if position is None else _vector(position, 3, "position")
+    q_global_body = None if quaternion is None else _vector(quaternion, 4, "quaternion")
+    if z is not None and not np.isfinite(z).all():
+        z = None
+    if q_global_body is not None:
+        norm = float(np.linalg.norm(q_global_body))
+        if not math.isfinite(norm) or abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+            q_global_body = None  # not a unit quaternion: a position-only fix
+    return t, z, q_global_body
+
+
 def _clipped(sample: Vector3, sensor_range: float) -> Vector3:
     """Each axis limited to ``[-range, range]``: what a saturated sensor reports."""
     return (min(max(sample[0], -sensor_range), sensor_range),
@@ -424,20 +448,7 @@ class KalmanFusion:
             lost): then it is accepted as a re-acquisition (after inflating the position
             and velocity covariance if it would have failed the gate).
         """
-        t = float(t)
-        if not math.isfinite(t):
-            raise ValueError(f"update: expected a finite time in s, got {t!r}")
-        if self._time is not None and t < self._time:
-            raise ValueError(f"update: timestamp {t!r} s is before the filter's time "
-                             f"({self._time!r} s); expected events in time order")
-        z = None if position is None else _vector(position, 3, "position")
-        q_global_body = None if quaternion is None else _vector(quaternion, 4, "quaternion")
-        if z is not None and not np.isfinite(z).all():
-            z = None
-        if q_global_body is not None:
-            norm = float(np.linalg.norm(q_global_body))
-            if not math.isfinite(norm) or abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
-                q_global_body = None  # not a unit quaternion: a position-only fix
+        t, z, q_global_body = checked_frame(t, self._time, position, quaternion)
         return self._update_valid(t, z, q_global_body)
 
     def estimate(self, t: float | None = None) -> FilterEstimate:
