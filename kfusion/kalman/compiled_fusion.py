@@ -28,8 +28,8 @@ from kfusion.kalman.filter import (
     FilterEstimate,
     KalmanFusion,
     UpdateOutcome,
-    _vector,
     checked_frame,
+    checked_sample,
 )
 from kfusion.kalman.parameters import KalmanParameters
 
@@ -111,12 +111,8 @@ class CompiledFusion:
 
     def predict(self, t: float, accelerometer: ArrayLike, gyroscope: ArrayLike) -> str:
         """:meth:`KalmanFusion.predict` (same checks, outcomes and errors)."""
-        t = float(t)
-        f = _vector(accelerometer, 3, "accelerometer")
-        omega = _vector(gyroscope, 3, "gyroscope")
-        if not math.isfinite(t):
-            raise ValueError(f"predict: expected a finite time in s, got {t!r}")
-        if not (np.isfinite(f).all() and np.isfinite(omega).all()):
+        t, f, omega, finite = checked_sample(t, accelerometer, gyroscope)
+        if not finite:
             self._counters[compiled.COUNTER_INDEX["imu_rejected"]] += 1
             return REJECTED
         stamp = self._scalars[compiled.IMU_STAMP]

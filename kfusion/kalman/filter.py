@@ -240,6 +240,20 @@ def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
     return array
 
 
+def checked_sample(t: float, accelerometer: ArrayLike, gyroscope: ArrayLike
+                   ) -> tuple[float, NDArray[np.float64], NDArray[np.float64], bool]:
+    """An IMU sample checked for ``predict`` (every engine's): ``(t, accelerometer (3,),
+    gyroscope (3,), finite)``, finite False when a value is NaN or inf (rejected, counted).
+    ValueError for wrong shapes or a non-finite t."""
+    t = float(t)
+    accelerometer_array = _vector(accelerometer, 3, "accelerometer")
+    gyroscope_array = _vector(gyroscope, 3, "gyroscope")
+    if not math.isfinite(t):
+        raise ValueError(f"predict: expected a finite time in s, got {t!r}")
+    finite = bool(np.isfinite(accelerometer_array).all() and np.isfinite(gyroscope_array).all())
+    return t, accelerometer_array, gyroscope_array, finite
+
+
 def checked_frame(t: float, state_time: float | None, position: ArrayLike | None,
                   quaternion: ArrayLike | None
                   ) -> tuple[float, NDArray[np.float64] | None, NDArray[np.float64] | None]:
@@ -410,12 +424,9 @@ class KalmanFusion:
         Raises:
             ValueError: wrong shapes, non-finite t, or t not after the previous sample.
         """
-        t = float(t)
-        accelerometer_array = _vector(accelerometer, 3, "accelerometer")
-        gyroscope_array = _vector(gyroscope, 3, "gyroscope")
-        if not math.isfinite(t):
-            raise ValueError(f"predict: expected a finite time in s, got {t!r}")
-        if not (np.isfinite(accelerometer_array).all() and np.isfinite(gyroscope_array).all()):
+        t, accelerometer_array, gyroscope_array, finite = checked_sample(t, accelerometer,
+                                                                         gyroscope)
+        if not finite:
             self._counters["imu_rejected"] += 1
             return REJECTED
         f = (float(accelerometer_array[0]), float(accelerometer_array[1]),
