@@ -436,6 +436,9 @@ class RunConfig(_Strict):
         description="random seeds (simulation, gap cutting); n means 0..n-1")
     output: OutputConfig = Field(default=OutputConfig())
     quick: bool = Field(default=False, description="shrink data for smoke tests (set by --quick)")
+    engine: Literal["compiled", "filterpy"] = Field(
+        default="compiled", description="Kalman filter engine: compiled (numba kernels) or "
+        "filterpy (the reference); see kfusion.kalman.engines")
 
     @field_validator("name")
     @classmethod

@@ -58,9 +58,19 @@ class MethodRun:
                 "imu_per_second": self.imu_samples / self.seconds if self.seconds else np.nan}
 
 
+ENGINE_METHODS = ("kalman", "smoother")
+"""Methods that take an ``engine`` (:mod:`kfusion.kalman.engines`)."""
+
+
+def engine_options(method: str, engine: str | None) -> dict[str, Any]:
+    """``{"engine": engine}`` for a method that has engines (:data:`ENGINE_METHODS`), else {}."""
+    return {"engine": engine} if engine is not None and method in ENGINE_METHODS else {}
+
+
 def run_method(scored: ScoredRecording, method: str, options: Mapping[str, Any] | None = None
                ) -> MethodRun:
-    """Track ``scored.recording`` with ``method`` and score its gap samples."""
+    """Track ``scored.recording`` with ``method`` and score its gap samples (``options`` may
+    hold an ``engine``: :func:`engine_options`)."""
     start = time.perf_counter()
     result = track_with_method(scored.recording, method, **dict(options or {}))
     seconds = time.perf_counter() - start

@@ -51,6 +51,7 @@ from kfusion.evaluate import GapErrors, metrics_from_errors
 from kfusion.experiment import (
     MethodRun,
     ScoredRecording,
+    engine_options,
     run_method,
     summary_table,
     write_table_csv,
@@ -198,7 +199,9 @@ def run_experiment(config: RunConfig, *, progress: bool = False) -> ExperimentRe
         for seed in config.seeds:
             for scored in config.scored_recordings(seed):
                 recordings[scored.name] = scored
-                runs[scored.name] = [run_method(scored, method, options)
+                runs[scored.name] = [run_method(scored, method,
+                                                {**options,
+                                                 **engine_options(method, config.engine)})
                                      for method, options in config.methods.items()]
             bar.update()
     return ExperimentResult(config=config, recordings=recordings, runs=runs,
@@ -272,6 +275,7 @@ def execute_task(task: SweepTask) -> dict[str, Any]:
         recordings, data_seconds = _recordings(task.config, task.seed)
         run_start = time.perf_counter()
         options = task.config.methods[task.method]
+        options = {**options, **engine_options(task.method, task.config.engine)}
         runs = [run_method(scored, task.method, options) for scored in recordings]
     except Exception as error:  # reported with the run; the sweep goes on
         return {**identity, "error": _error_text(error)}

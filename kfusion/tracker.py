@@ -606,15 +606,20 @@ class _KalmanEstimator:
     has_covariance = True
 
     def __init__(self, imu_to_body: NDArray, gravity: NDArray, params: Any,
-                 lever_arm: NDArray | None) -> None:
+                 lever_arm: NDArray | None, engine: str = "filterpy") -> None:
         from kfusion.kalman import KalmanFusion
         from kfusion.monitor import ConsistencyMonitor
 
-        self._fusion = KalmanFusion(imu_to_body, gravity, params, lever_arm=lever_arm)
+        fusion_class: Any = KalmanFusion
+        if engine == "compiled":  # numba loads here, on first use
+            from kfusion.kalman.compiled_fusion import CompiledFusion
+
+            fusion_class = CompiledFusion
+        self._fusion = fusion_class(imu_to_body, gravity, params, lever_arm=lever_arm)
         # the consistency monitor (kfusion.monitor) with its shadow filter: scales the bound in
         # gaps as the shadow gaps showed it must, or refuses to bridge (read() gives None)
         self.monitor = ConsistencyMonitor(
-            KalmanFusion(imu_to_body, gravity, params, lever_arm=lever_arm), gravity=gravity)
+            fusion_class(imu_to_body, gravity, params, lever_arm=lever_arm), gravity=gravity)
         self.max_bridge_s = float(params.max_bridge_s)
         self.imu_dropout_s = float(params.imu_dropout_s)
         self.accelerometer_range = float(params.accelerometer_range)
@@ -792,6 +797,13 @@ class Tracker:
             needs ``t`` (an estimate is never presented as current when it is old).
         markers: ``{NAME: [bx, by, bz]}``, each marker's position in the body frame, m
             (``recording.yaml``'s ``markers``): needed by :meth:`push_markers` (Kalman only).
+        engine: the Kalman filter's engine: ``compiled`` (default: :class:`kfusion.kalman.
+            compiled_fusion.CompiledFusion`, numba step functions; numba loads on the first
+            Tracker, and compiles once if its on-disk cache is empty) or ``filterpy``
+            (:class:`kfusion.kalman.KalmanFusion`, the reference; the same results within
+            rounding, tests/test_compiled_engine.py). Marker-level fusion (``markers``) has
+            no compiled path yet: with ``markers`` the default is ``filterpy`` and
+            ``compiled`` is refused.
 
     Thread safety: every public method holds the tracker's lock, and :meth:`estimate` and
     :attr:`health` do not change the state, so one thread may push while others read.
@@ -814,6 +826,7 @@ class Tracker:
         imu_clock_drift_ppm: float = 0.0,
         clock: Callable[[], float] | None = None,
         markers: Mapping[str, ArrayLike] | None = None,
+        engine: str | None = None,
     ) -> None:
         self.imu_clock = check_clock(imu_time_offset, imu_clock_drift_ppm, "Tracker")
         self._imu_clock_mapped = self.imu_clock != (0.0, 0.0)
@@ -836,6 +849,15 @@ class Tracker:
         lever = None if lever_arm is None else _vector("Tracker", "lever_arm", lever_arm, 3, "m")
         if lever is not None and not np.isfinite(lever).all():
             raise ValueError("Tracker: lever_arm: expected 3 finite numbers (m), got non-finite")
+        if engine is None:  # marker-level fusion has no compiled path yet
+            engine = "filterpy" if markers else "compiled"
+        if engine not in ("compiled", "filterpy"):  # kfusion.kalman.engines.ENGINES
+            raise ValueError(f"Tracker: engine: expected 'compiled' or 'filterpy', got "
+                             f"{short_repr(engine)}")
+        if markers and engine == "compiled":
+            raise ValueError("Tracker: engine 'compiled' has no marker-level fusion yet: leave "
+                             "engine out or pass engine='filterpy' with markers")
+        self.engine = engine
         if not isinstance(method, str) or method not in METHODS:
             raise ValueError(f"Tracker: method: expected one of {list(METHODS)}, got "
                              f"{short_repr(method)}")
@@ -968,7 +990,7 @@ class Tracker:
     def _new_estimator(self) -> _Estimator:
         if self.method == "kalman":
             return _KalmanEstimator(self._imu_to_body, self._gravity, self.params,
-                                    self._lever_arm)
+                                    self._lever_arm, self.engine)
         return _BaselineEstimator(self._imu_to_body, self.params,
                                   self.imu_profile.accelerometer_range)
 

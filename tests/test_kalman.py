@@ -295,7 +295,7 @@ def test_streaming_equals_the_batch_run():
     recording = sim_recording(duration=8.0)
     params = KalmanParameters.from_profiles("mpu9255")
     # KalmanFusion streams the model alone; the monitor's layer is compared in test_monitor.py
-    batch = run_filter(recording, params, monitor=None).result
+    batch = run_filter(recording, params, monitor=None, engine="filterpy").result
     steps = stream(KalmanFusion(recording.info.imu_to_body, recording.info.gravity, params,
                                 lever_arm=recording.info.lever_arm), recording)
     np.testing.assert_array_equal(np.array([s.position for s in steps]), batch.position)

@@ -10,7 +10,9 @@ import numpy as np
 from kfusion.calibration.diagnosis import diagnose
 from kfusion.config import check_methods
 from kfusion.conventions import STATUSES
+from kfusion.experiment import engine_options
 from kfusion.guards import YamlError, load_yaml_text, short_repr
+from kfusion.kalman.engines import DEFAULT_ENGINE, ENGINES
 from kfusion.methods import METHODS, track_with_method
 from kfusion.recording import Recording, read_recording
 from kfusion.track_file import write_track_csv
@@ -52,6 +54,17 @@ MARKER_METHODS = ("kalman", "smoother")
 """Methods with marker-level fusion (``--measurement markers``)."""
 
 
+def track_engine(requested: str | None, measurement: str) -> str:
+    """``--engine``: as requested, by default ``compiled``, except for marker-level fusion,
+    which runs on ``filterpy`` (ValueError when ``compiled`` is asked for with it)."""
+    if measurement == "markers":
+        if requested == "compiled":
+            raise ValueError("--engine compiled: marker-level fusion runs on the filterpy engine "
+                             "only; leave --engine out or add --measurement body")
+        return "filterpy"
+    return requested or DEFAULT_ENGINE
+
+
 def measurement_mode(recording: Recording, method: str, requested: str | None) -> str:
     """``--measurement``: as requested, or by default ``markers`` when the recording has them
     and the method fuses them (:func:`kfusion.kalman.batch.default_measurement`), else
@@ -83,6 +96,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="kalman and smoother: fuse each visible marker of markers.csv "
                         "(markers) or the rigid body of mocap.csv (body) (default: markers when "
                         "the folder has markers.csv and recording.yaml has markers:, else body)")
+    parser.add_argument("--engine", choices=ENGINES, default=None,
+                        help="Kalman filter engine for --method kalman and smoother: compiled "
+                        f"(numba; the default, {DEFAULT_ENGINE}, except with --measurement "
+                        "markers, which runs on filterpy) or filterpy (the reference)")
     parser.add_argument("--zeros-occluded", action="store_true",
                         help="read a mocap position of exactly (0, 0, 0) as occluded")
     parser.add_argument("--force", action="store_true",
@@ -100,12 +117,15 @@ def run(args: argparse.Namespace) -> int:
         shifted = f" with imu_latency_s = {latency:g} s" if latency else ""
         raise ValueError(f"{args.folder}{shifted}: {diagnosis.problems[0]} (or pass --force)")
     measurement = measurement_mode(recording, args.method, args.measurement)
+    engine = track_engine(args.engine, measurement)
     if args.method in MARKER_METHODS:
         options["measurement"] = measurement
-    result = track_with_method(recording, args.method, **options)
+    result = track_with_method(recording, args.method, **options,
+                               **engine_options(args.method, engine))
     path = write_track_csv(result, args.out)
     counts = {status: int(np.sum(result.status == status)) for status in STATUSES}
     summary = ", ".join(f"{count} {status}" for status, count in counts.items())
+    engine_text = f", engine: {engine}" if engine_options(args.method, engine) else ""
     print(f"{args.method}: wrote {len(result)} rows to {path} ({summary}; measurement: "
-          f"{measurement})")
+          f"{measurement}{engine_text})")
     return 0

@@ -11,12 +11,13 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
 
 from kfusion.conventions import BRIDGED, LOST
+from kfusion.kalman.engines import DEFAULT_ENGINE, ENGINES
 from kfusion.kalman.events import IMU_STREAM, merge_events
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
 from kfusion.kalman.markers import shared_run_lengths
@@ -47,19 +48,30 @@ def resolve_parameters(recording: Recording, params: KalmanParameters | None,
     return dataclasses.replace(params, **overrides) if overrides else params
 
 
-def make_fusion(recording: Recording, params: KalmanParameters) -> KalmanFusion:
-    """A :class:`KalmanFusion` configured from the recording's metadata."""
+def make_fusion(recording: Recording, params: KalmanParameters, engine: str = "filterpy"
+                ) -> KalmanFusion:
+    """A :class:`KalmanFusion` (``engine`` filterpy) or a :class:`kfusion.kalman.
+    compiled_fusion.CompiledFusion` (compiled: the same interface) configured from the
+    recording's metadata."""
     info = recording.info
+    if engine == "compiled":
+        from kfusion.kalman.compiled_fusion import CompiledFusion  # numba loads here
+
+        compiled: Any = CompiledFusion(info.imu_to_body, info.gravity, params,
+                                       lever_arm=info.lever_arm)
+        return cast(KalmanFusion, compiled)  # the same public interface
     return KalmanFusion(info.imu_to_body, info.gravity, params, lever_arm=info.lever_arm)
 
 
 def make_monitor(recording: Recording, params: KalmanParameters,
-                 monitor: MonitorParameters | None) -> ConsistencyMonitor | None:
+                 monitor: MonitorParameters | None, engine: str = "filterpy"
+                 ) -> ConsistencyMonitor | None:
     """The consistency monitor of a run (None when ``monitor`` is None), with its own shadow
     filter built like the main one."""
     if monitor is None:
         return None
-    return ConsistencyMonitor(make_fusion(recording, params), monitor, recording.info.gravity)
+    return ConsistencyMonitor(make_fusion(recording, params, engine), monitor,
+                              recording.info.gravity)
 
 
 BODY = "body"
@@ -94,6 +106,12 @@ def marker_inputs(recording: Recording) -> tuple[NDArray[np.float64], NDArray[np
                          f"rows), got {len(markers)} rows at other times")
     return (np.asarray(markers.position, dtype=float),
             np.array([body[name] for name in markers.names], dtype=float))
+
+
+def measurement_engine(engine: str, measurement: str) -> str:
+    """The engine that runs ``measurement``: ``engine``, except marker-level fusion, which has
+    no compiled path yet and runs on ``filterpy``."""
+    return "filterpy" if measurement == MARKERS else engine
 
 
 def process_recording(recording: Recording, fusion: KalmanFusion,
@@ -132,10 +150,12 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
     events = merge_events(stamps, mocap.t.tolist(), fusion.params.imu_latency_s)
     while events and events[-1][1] == IMU_STREAM:
         events.pop()
+    fast = type(fusion) is KalmanFusion  # its validated internals; other engines: public API
     for t, stream, index in events:
         if stream == IMU_STREAM:
             stamp = stamps[index]
-            if finite[index] and (fusion._imu_stamp is None or stamp > fusion._imu_stamp):
+            if fast and finite[index] and (fusion._imu_stamp is None
+                                           or stamp > fusion._imu_stamp):
                 f, omega = accelerometer[index], gyroscope[index]
                 fusion._predict_valid(stamp, (f[0], f[1], f[2]), (omega[0], omega[1], omega[2]))
             else:  # the public path rejects, skips or raises with its message
@@ -155,8 +175,10 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
             on_row(index, outcome)
             continue
         position = mocap.position[index].copy() if visible[index] else None
-        if position is not None:
+        if position is not None and fast:
             outcome = fusion._update_valid(t, position, mocap.quaternion[index].copy())
+        elif position is not None:
+            outcome = fusion.update(t, position, mocap.quaternion[index].copy())
         else:
             outcome = fusion.update(t, None, None)
         if monitor is not None:
@@ -324,6 +346,11 @@ class _RowRecorder:
         # (m^2, the mocap noise and the rivals), NaN elsewhere
         self.fix_position = np.full((rows, 3), np.nan)
         self.fix_variance = np.full((rows, 3), np.nan)
+        self.counters: dict[str, int] = {}
+
+    def finish(self) -> None:
+        """Take the filter's final counters."""
+        self.counters = self.fusion.counters
 
     def record(self, row: int, outcome: UpdateOutcome) -> None:
         fusion = self.fusion
@@ -342,7 +369,7 @@ class _RowRecorder:
         if fusion.initialised:
             self.x[row] = fusion._kf.x
             self.P[row] = fusion._kf.P
-            H, offset = fusion._output_map(fusion._orientation.state.quaternion)
+            H, offset = fusion.output_map()
             self.output_matrix[row] = H
             self.output_offset[row] = offset
             if self.monitor is not None:
@@ -360,23 +387,88 @@ class _RowRecorder:
         return np.isfinite(self.x[:, 0])
 
 
+def check_engine(engine: str) -> str:
+    """``engine`` if it names one (:data:`ENGINES`), else a ValueError saying which exist."""
+    if engine not in ENGINES:
+        raise ValueError(f"engine: expected one of {list(ENGINES)}, got {engine!r}")
+    return engine
+
+
+def compiled_rows(recording: Recording, fusion: KalmanFusion, *, smoothing: bool = False
+                  ) -> tuple[_RowRecorder, Any] | None:
+    """The per-row arrays of :func:`process_recording` computed by the compiled whole-loop
+    kernel (:func:`kfusion.kalman.compiled.filter_events`) over the same merged events, with
+    ``fusion``'s configuration (``fusion`` itself is not run). None when the kernel stops at an
+    event it cannot handle (an out-of-order stamp): the caller runs the filterpy engine, whose
+    error names it. Returns the recorder and the kernel's run (:class:`kfusion.kalman.compiled.
+    KernelRun`, with the smoother's per-row predictions and transitions when ``smoothing``)."""
+    from kfusion.kalman import compiled  # numba loads on first use of the engine
+
+    recording = on_mocap_clock(recording)
+    imu, mocap = recording.imu, recording.mocap
+    events = merge_events(imu.t.tolist(), mocap.t.tolist(), fusion.params.imu_latency_s)
+    while events and events[-1][1] == IMU_STREAM:
+        events.pop()
+    run = compiled.run_kernel(imu.t, imu.accelerometer, imu.gyroscope, mocap.t, mocap.position,
+                              mocap.quaternion, mocap.visible, events, fusion.kernel_config(),
+                              fusion.size, smoothing)
+    if run.failed_event >= 0:
+        return None
+    recorder = _RowRecorder(fusion, len(mocap))
+    recorder.x, recorder.P = run.x, run.P
+    recorder.output_matrix, recorder.output_offset = run.output_matrix, run.output_offset
+    recorder.outcome = run.outcome.astype(object)
+    recorder.nis, recorder.dead_reckoned = run.nis, run.dead_reckoned
+    recorder.counters = run.counters
+    return recorder, run
+
+
+def compiled_points(recorder: _RowRecorder, x: NDArray[np.float64] | None = None,
+                    P: NDArray[np.float64] | None = None
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`point_estimates` by the compiled engine (:func:`kfusion.kalman.compiled.
+    point_rows`) for the recorder's rows, or for states ``x``, ``P`` at its output maps."""
+    from kfusion.kalman import compiled
+
+    position, variance = compiled.point_rows(
+        recorder.output_matrix, recorder.x if x is None else x, recorder.output_offset,
+        recorder.P if P is None else P)
+    return position, variance
+
+
 def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
                monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008 (frozen)
-               measurement: str = BODY, **overrides: Any) -> FilterRun:
-    """Run :class:`KalmanFusion` over ``recording`` and keep its per-row states and outcomes.
+               measurement: str = BODY, engine: str = DEFAULT_ENGINE,
+               **overrides: Any) -> FilterRun:
+    """Run the filter over ``recording`` and keep its per-row states and outcomes.
 
     ``monitor``: the consistency monitor's settings (:mod:`kfusion.monitor`); None runs the
     filter alone (the bound is then the profile's). ``measurement``: ``body`` or ``markers``
-    (:func:`process_recording`)."""
+    (:func:`process_recording`). ``engine``: ``compiled`` (the numba whole-loop kernel,
+    :mod:`kfusion.kalman.compiled`) or ``filterpy`` (:class:`KalmanFusion` step by step). The
+    consistency monitor watches a filter event by event, so with a monitor the compiled engine
+    runs step by step (:class:`kfusion.kalman.compiled_fusion.CompiledFusion`, for the filter
+    and the monitor's shadow filter). Marker-level fusion runs on filterpy whatever the engine
+    (:func:`measurement_engine`)."""
+    check_engine(engine)
+    engine = measurement_engine(engine, measurement)
     params = resolve_parameters(recording, params, overrides)
-    fusion = make_fusion(recording, params)
-    watcher = make_monitor(recording, params, monitor)
-    recorder = _RowRecorder(fusion, len(recording.mocap), watcher)
-    process_recording(recording, fusion, recorder.record, watcher, measurement)
+    watcher = make_monitor(recording, params, monitor, engine)
+    # without a monitor the compiled engine runs the whole loop in one kernel; with one (it
+    # watches the filter event by event), the compiled step functions (CompiledFusion)
+    fusion = make_fusion(recording, params, "filterpy" if watcher is None else engine)
+    rows = compiled_rows(recording, fusion) if engine == "compiled" and watcher is None else None
+    if rows is not None:
+        recorder = rows[0]
+    else:
+        recorder = _RowRecorder(fusion, len(recording.mocap), watcher)
+        process_recording(recording, fusion, recorder.record, watcher, measurement)
+        recorder.finish()
     status, since = status_from_fixes(recording.mocap.t, recorder.fixed, recorder.initialised,
                                       params.max_bridge_s, recorder.dead_reckoned)
-    position, variance = point_estimates(recorder.x, recorder.P, recorder.output_matrix,
-                                         recorder.output_offset)
+    position, variance = (compiled_points(recorder) if rows is not None else
+                          point_estimates(recorder.x, recorder.P, recorder.output_matrix,
+                                          recorder.output_offset))
     scale = np.ones(len(status))
     if watcher is not None:
         status, variance, scale = apply_monitor(status, variance, recorder.scale_tables,
@@ -392,14 +484,15 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
     return FilterRun(result=result, x=recorder.x, P=recorder.P,
                      output_matrix=recorder.output_matrix, output_offset=recorder.output_offset,
                      outcome=recorder.outcome.astype(str), nis=recorder.nis,
-                     counters=fusion.counters, params=params,
+                     counters=recorder.counters, params=params,
                      monitor=None if watcher is None else watcher.report(),
                      variance_scale=scale)
 
 
 def filter_recording(recording: Recording, params: KalmanParameters | None = None, *,
                      monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008
-                     measurement: str = BODY, **overrides: Any) -> TrackResult:
+                     measurement: str = BODY, engine: str = DEFAULT_ENGINE,
+                     **overrides: Any) -> TrackResult:
     """Method ``kalman``: the streaming filter's estimate at every mocap row.
 
     Args:
@@ -408,6 +501,7 @@ def filter_recording(recording: Recording, params: KalmanParameters | None = Non
             :meth:`KalmanParameters.from_profiles`).
         monitor: consistency monitor settings (None: off).
         measurement: ``body`` (rigid-body fixes) or ``markers`` (marker-level fusion).
+        engine: ``compiled`` or ``filterpy`` (see :func:`run_filter`).
         overrides: parameter fields to replace (e.g. ``max_bridge_s=0.5``).
 
     Returns:
@@ -416,4 +510,4 @@ def filter_recording(recording: Recording, params: KalmanParameters | None = Non
         fix (s).
     """
     return run_filter(recording, params, monitor=monitor, measurement=measurement,
-                      **overrides).result
+                      engine=engine, **overrides).result

@@ -264,6 +264,51 @@ def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
     return array
 
 
+def checked_sample(t: float, accelerometer: ArrayLike, gyroscope: ArrayLike
+                   ) -> tuple[float, NDArray[np.float64], NDArray[np.float64], bool]:
+    """An IMU sample checked for ``predict`` (every engine's): ``(t, accelerometer (3,),
+    gyroscope (3,), finite)``, finite False when a value is NaN or inf (rejected, counted).
+    ValueError for wrong shapes or a non-finite t."""
+    t = float(t)
+    accelerometer_array = _vector(accelerometer, 3, "accelerometer")
+    gyroscope_array = _vector(gyroscope, 3, "gyroscope")
+    if not math.isfinite(t):
+        raise ValueError(f"predict: expected a finite time in s, got {t!r}")
+    finite = bool(np.isfinite(accelerometer_array).all() and np.isfinite(gyroscope_array).all())
+    return t, accelerometer_array, gyroscope_array, finite
+
+
+def frame_time(t: float, state_time: float | None, where: str) -> float:
+    """A mocap frame's time as a float: ValueError (naming ``where``) unless finite and not
+    before ``state_time`` (s, the filter's; None before any event)."""
+    t = float(t)
+    if not math.isfinite(t):
+        raise ValueError(f"{where}: expected a finite time in s, got {t!r}")
+    if state_time is not None and t < state_time:
+        raise ValueError(f"{where}: timestamp {t!r} s is before the filter's time "
+                         f"({state_time!r} s); expected events in time order")
+    return t
+
+
+def checked_frame(t: float, state_time: float | None, position: ArrayLike | None,
+                  quaternion: ArrayLike | None
+                  ) -> tuple[float, NDArray[np.float64] | None, NDArray[np.float64] | None]:
+    """A mocap frame checked for ``update`` (every engine's): ``(t, z, q_global_body)`` with z
+    None when occluded (None or any NaN) and the quaternion None when it is not a unit one (a
+    position-only fix). ValueError for a non-finite t, t before ``state_time`` or wrong
+    shapes."""
+    t = frame_time(t, state_time, "update")
+    z = None if position is None else _vector(position, 3, "position")
+    q_global_body = None if quaternion is None else _vector(quaternion, 4, "quaternion")
+    if z is not None and not np.isfinite(z).all():
+        z = None
+    if q_global_body is not None:
+        norm = float(np.linalg.norm(q_global_body))
+        if not math.isfinite(norm) or abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+            q_global_body = None  # not a unit quaternion: a position-only fix
+    return t, z, q_global_body
+
+
 def _clipped(sample: Vector3, sensor_range: float) -> Vector3:
     """Each axis limited to ``[-range, range]``: what a saturated sensor reports."""
     return (min(max(sample[0], -sensor_range), sensor_range),
@@ -413,12 +458,9 @@ class KalmanFusion:
         Raises:
             ValueError: wrong shapes, non-finite t, or t not after the previous sample.
         """
-        t = float(t)
-        accelerometer_array = _vector(accelerometer, 3, "accelerometer")
-        gyroscope_array = _vector(gyroscope, 3, "gyroscope")
-        if not math.isfinite(t):
-            raise ValueError(f"predict: expected a finite time in s, got {t!r}")
-        if not (np.isfinite(accelerometer_array).all() and np.isfinite(gyroscope_array).all()):
+        t, accelerometer_array, gyroscope_array, finite = checked_sample(t, accelerometer,
+                                                                         gyroscope)
+        if not finite:
             self._counters["imu_rejected"] += 1
             return REJECTED
         f = (float(accelerometer_array[0]), float(accelerometer_array[1]),
@@ -451,15 +493,7 @@ class KalmanFusion:
             lost): then it is accepted as a re-acquisition (after inflating the position
             and velocity covariance if it would have failed the gate).
         """
-        t = self._frame_time(t, "update")
-        z = None if position is None else _vector(position, 3, "position")
-        q_global_body = None if quaternion is None else _vector(quaternion, 4, "quaternion")
-        if z is not None and not np.isfinite(z).all():
-            z = None
-        if q_global_body is not None:
-            norm = float(np.linalg.norm(q_global_body))
-            if not math.isfinite(norm) or abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
-                q_global_body = None  # not a unit quaternion: a position-only fix
+        t, z, q_global_body = checked_frame(t, self._time, position, quaternion)
         return self._update_valid(t, z, q_global_body)
 
     def update_markers(self, t: float, observed: ArrayLike, body_positions: ArrayLike, *,
@@ -511,15 +545,8 @@ class KalmanFusion:
         return self._update_markers_valid(t, seen[visible], body[visible], shared_frames)
 
     def _frame_time(self, t: float, where: str) -> float:
-        """A mocap frame's time as a float: ValueError (naming ``where``) unless finite and not
-        before the state's time."""
-        t = float(t)
-        if not math.isfinite(t):
-            raise ValueError(f"{where}: expected a finite time in s, got {t!r}")
-        if self._time is not None and t < self._time:
-            raise ValueError(f"{where}: timestamp {t!r} s is before the filter's time "
-                             f"({self._time!r} s); expected events in time order")
-        return t
+        """A mocap frame's time (:func:`frame_time` against the state's time)."""
+        return frame_time(t, self._time, where)
 
     def estimate(self, t: float | None = None) -> FilterEstimate:
         """The estimate at t (s; default: the state's time). A later t extrapolates holding the
@@ -548,6 +575,18 @@ class KalmanFusion:
             t, position, position_covariance, np.sqrt(np.diag(position_covariance)),
             x[model.VELOCITY].copy(), x[model.BIAS].copy(), self._lever_in_use(x),
             np.asarray(quaternion), P, status, since, self._last_nis)
+
+    def output_map(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(H (3, n), c (3,)): the rigid-body point is ``H x + c`` at the current orientation."""
+        return self._output_map(self._orientation.state.quaternion)
+
+    def kernel_config(self) -> NDArray[np.float64]:
+        """This filter's configuration packed for the compiled engine
+        (:func:`kfusion.kalman.compiled.pack_config`; imports numba)."""
+        from kfusion.kalman.compiled import pack_config
+
+        return pack_config(self.params, self._q_body_imu, self._R_imu_body, self._gravity,
+                           self._lever_arm, self.size)
 
     # ------------------------------------------------------------------ save / restore
 

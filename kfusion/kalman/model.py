@@ -45,14 +45,16 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2
 
-BASE_SIZE = 9
-LEVER_SIZE = 12
+from kfusion.kalman.layout import BASE_LAYOUT, LEVER_LAYOUT, layout_for
+
+BASE_SIZE = BASE_LAYOUT.size
+LEVER_SIZE = LEVER_LAYOUT.size
 CONTROL_SIZE = 9
 MEASUREMENT_SIZE = 3
-POSITION = slice(0, 3)
-VELOCITY = slice(3, 6)
-BIAS = slice(6, 9)
-LEVER = slice(9, 12)
+POSITION = LEVER_LAYOUT.slice("position")
+VELOCITY = LEVER_LAYOUT.slice("velocity")
+BIAS = LEVER_LAYOUT.slice("bias")
+LEVER = LEVER_LAYOUT.slice("lever_arm")
 
 SATURATION_FRACTION = 0.999
 """A sample axis at or beyond this fraction of the sensor range counts as saturated."""
@@ -61,8 +63,8 @@ IMPLAUSIBLE_SAMPLE = 1e6
 
 
 def state_size(estimate_lever_arm: bool) -> int:
-    """9, or 12 with the lever-arm states."""
-    return LEVER_SIZE if estimate_lever_arm else BASE_SIZE
+    """9, or 12 with the lever-arm states (:func:`kfusion.kalman.layout.layout_for`)."""
+    return layout_for(estimate_lever_arm).size
 
 
 def fill_interval(F: NDArray[np.float64], B: NDArray[np.float64], R_start: ArrayLike,

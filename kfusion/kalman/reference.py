@@ -26,11 +26,15 @@ from numpy.typing import NDArray
 from scipy.stats import chi2
 
 from kfusion.kalman.events import imu_event_time
-from kfusion.kalman.model import (
+from kfusion.kalman.model import (  # the state's blocks come from kfusion.kalman.layout
+    BIAS,
     IMPLAUSIBLE_SAMPLE,
+    LEVER,
     LOW_PASS_TIME_CONSTANT,
+    POSITION,
     SATURATION_FRACTION,
     SCALE_ERROR_COHERENCE_S,
+    VELOCITY,
 )
 from kfusion.kalman.orientation import (
     OrientationTracker,
@@ -139,18 +143,18 @@ class _Reference:
     def propagate(self, dt: float, R0: NDArray, R1: NDArray, f0: NDArray, f1: NDArray,
                   angle_variance_before: float, previous_low_pass: NDArray | None) -> None:
         params = self.params
-        p, v, b = self.x[0:3], self.x[3:6], self.x[6:9]
+        p, v, b = self.x[POSITION], self.x[VELOCITY], self.x[BIAS]
         # mean: linear acceleration between the ends, integrated exactly
         a0 = R0 @ (f0 - b) + self.g
         a1 = R1 @ (f1 - b) + self.g
         x = self.x.copy()
-        x[0:3] = p + v * dt + dt * dt * (a0 / 3.0 + a1 / 6.0)
-        x[3:6] = v + dt * (a0 + a1) / 2.0
+        x[POSITION] = p + v * dt + dt * dt * (a0 / 3.0 + a1 / 6.0)
+        x[VELOCITY] = v + dt * (a0 + a1) / 2.0
         # Jacobian of the new state with respect to the old one
         J = np.eye(self.n)
-        J[0:3, 3:6] = dt * np.eye(3)
-        J[0:3, 6:9] = -dt * dt * (R0 / 3.0 + R1 / 6.0)
-        J[3:6, 6:9] = -dt * (R0 + R1) / 2.0
+        J[POSITION, VELOCITY] = dt * np.eye(3)
+        J[POSITION, BIAS] = -dt * dt * (R0 / 3.0 + R1 / 6.0)
+        J[VELOCITY, BIAS] = -dt * (R0 + R1) / 2.0
         # process noise: held white noise, its extras, the bias walk and its extras
         force_squared = 0.5 * (f0 @ f0 + f1 @ f1)
         leak = params.tilt_error_inflation * force_squared * max(
@@ -164,10 +168,11 @@ class _Reference:
         white = params.accelerometer_noise_density ** 2 / dt  # per-sample noise variance
         held = self.f_extra + max((f1 - f0) @ (f1 - f0) - 2 * 11.3448667 * white, 0.0) / 36.0
         Q = np.zeros((self.n, self.n))
-        Q[0:3, 0:3] = (white * dt ** 4 + held * dt ** 4 / 4) * np.eye(3)
-        Q[0:3, 3:6] = Q[3:6, 0:3] = (white * dt ** 3 + held * dt ** 3 / 2) * np.eye(3)
-        Q[3:6, 3:6] = (white * dt ** 2 + held * dt ** 2) * np.eye(3)
-        Q[6:9, 6:9] = (params.accelerometer_bias_random_walk ** 2 * dt + leak + scale) * np.eye(3)
+        Q[POSITION, POSITION] = (white * dt ** 4 + held * dt ** 4 / 4) * np.eye(3)
+        Q[POSITION, VELOCITY] = Q[VELOCITY, POSITION] = (
+            (white * dt ** 3 + held * dt ** 3 / 2) * np.eye(3))
+        Q[VELOCITY, VELOCITY] = (white * dt ** 2 + held * dt ** 2) * np.eye(3)
+        Q[BIAS, BIAS] = (params.accelerometer_bias_random_walk ** 2 * dt + leak + scale) * np.eye(3)
         self.x = x
         P = J @ self.P @ J.T + Q
         self.P = (P + P.T) / 2
@@ -177,12 +182,12 @@ class _Reference:
     def measurement(self, q_global_imu: tuple[float, float, float, float]
                     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         H = np.zeros((3, self.n))
-        H[:, 0:3] = np.eye(3)
+        H[:, POSITION] = np.eye(3)
         c = np.zeros(3)
         if self.lever is not None or self.estimate_lever:
             R_global_body = matrix_from_quaternion(q_global_imu) @ self.R_imu_body
             if self.estimate_lever:
-                H[:, 9:12] = -R_global_body
+                H[:, LEVER] = -R_global_body
             else:
                 assert self.lever is not None
                 c = -R_global_body @ self.lever
@@ -204,18 +209,18 @@ class _Reference:
                                 self.orientation.state.quaternion)
         if not self.initialised:
             self.x = np.zeros(self.n)
-            self.x[0:3] = z - c
+            self.x[POSITION] = z - c
             P = np.diag(np.repeat([params.mocap_position_noise ** 2,
                                    params.initial_velocity_std ** 2,
                                    params.initial_bias_std ** 2], 3))
             if self.estimate_lever:
-                R_global_body = -H[:, 9:12]
+                R_global_body = -H[:, LEVER]
                 s2 = params.lever_arm_std ** 2
                 P = np.pad(P, ((0, 3), (0, 3)))
-                P[0:3, 0:3] += s2 * np.eye(3)
-                P[0:3, 9:12] = s2 * R_global_body
-                P[9:12, 0:3] = s2 * R_global_body.T
-                P[9:12, 9:12] = s2 * np.eye(3)
+                P[POSITION, POSITION] += s2 * np.eye(3)
+                P[POSITION, LEVER] = s2 * R_global_body
+                P[LEVER, POSITION] = s2 * R_global_body.T
+                P[LEVER, LEVER] = s2 * np.eye(3)
             self.P = P
             self.initialised = True
             self.last_fix = t
@@ -232,8 +237,8 @@ class _Reference:
                 position = float(y @ y) / 3
                 tau = max(since, 1e-3)
                 self.P = self.P.copy()
-                self.P[0:3, 0:3] += position * np.eye(3)
-                self.P[3:6, 3:6] += 4 * position / tau ** 2 * np.eye(3)
+                self.P[POSITION, POSITION] += position * np.eye(3)
+                self.P[VELOCITY, VELOCITY] += 4 * position / tau ** 2 * np.eye(3)
                 S = H @ self.P @ H.T + R_z
         elif nis > self.gate and float(y @ y) > params.gate_min_innovation ** 2:
             return "gated", nis

@@ -48,10 +48,14 @@ from kfusion.kalman.batch import (
     MARKERS,
     _RowRecorder,
     apply_monitor,
+    check_engine,
+    compiled_points,
+    compiled_rows,
     fix_only_rows,
     make_fusion,
     make_monitor,
     marker_inputs,
+    measurement_engine,
     point_estimates,
     position_covariances,
     process_recording,
@@ -59,6 +63,7 @@ from kfusion.kalman.batch import (
     row_statuses,
     status_from_fixes,
 )
+from kfusion.kalman.engines import DEFAULT_ENGINE
 from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, USED_OUTCOMES, UpdateOutcome
 from kfusion.kalman.markers import shared_run_lengths
 from kfusion.kalman.parameters import KalmanParameters
@@ -218,7 +223,8 @@ def partial_occlusion_floor(recording: Recording, smoothed_variance: NDArray[np.
 
 
 def holdout_scales(recording: Recording, params: KalmanParameters, monitor: MonitorParameters,
-                   seed: int = 0, measurement: str = BODY) -> HorizonScales | None:
+                   seed: int = 0, measurement: str = BODY, engine: str = DEFAULT_ENGINE
+                   ) -> HorizonScales | None:
     """The smoother's shadow gaps: hide visible fixes in gaps as long as the recording's own
     (those up to ``max_bridge_s``), smooth the copy, and collect per gap the variance scale
     each hidden fix needed (:func:`kfusion.monitor.required_scale`) by its distance to the
@@ -242,7 +248,8 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
                       spacing=0.5)
     if not hidden.gap_mask.any():
         return None
-    run = run_smoother(hidden.recording, params, monitor=None, measurement=measurement)
+    run = run_smoother(hidden.recording, params, monitor=None, measurement=measurement,
+                       engine=engine)
     fixed = run.result.status == TRACKED
     assert run.output_matrix is not None
     horizon = nearest_fix_distance(mocap.t, fixed)
@@ -266,13 +273,21 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
 
 def run_smoother(recording: Recording, params: KalmanParameters | None = None, *,
                  monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008 (frozen)
-                 measurement: str = BODY, **overrides: Any) -> SmootherRun:
+                 measurement: str = BODY, engine: str = DEFAULT_ENGINE,
+                 **overrides: Any) -> SmootherRun:
     """Forward :class:`KalmanFusion` pass storing rows, then the RTS backward pass; with a
     ``monitor`` (default), the forward filter's online monitor and the hold-out check of the
     smoothed bound (module docstring). ``measurement``: ``body`` or ``markers``
     (:func:`kfusion.kalman.batch.process_recording`, offline: with markers the forward pass
     counts each partial-occlusion run's gyroscope orientation error once per run, so its
-    ``filtered`` rows there are more cautious than :func:`kfusion.kalman.run_filter`'s)."""
+    ``filtered`` rows there are more cautious than :func:`kfusion.kalman.run_filter`'s).
+    ``engine``: ``compiled`` runs both passes as numba kernels
+    (:func:`kfusion.kalman.compiled.filter_events`, :func:`~kfusion.kalman.compiled.
+    rts_backward`) when there is no monitor (which watches a filter event by event);
+    ``filterpy`` runs :class:`KalmanFusion` and the numpy backward pass; marker-level fusion
+    runs on filterpy (:func:`kfusion.kalman.batch.measurement_engine`)."""
+    check_engine(engine)
+    engine = measurement_engine(engine, measurement)
     params = resolve_parameters(recording, params, overrides)
     fusion = make_fusion(recording, params)
     watcher = make_monitor(recording, params, monitor)
@@ -283,6 +298,16 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     P_predicted = np.full((m, size, size), np.nan)
     transitions = np.full((m, size, size), np.nan)
     fusion._interval = np.eye(size)
+    backward = rts_backward
+    rows = (compiled_rows(recording, fusion, smoothing=True)
+            if engine == "compiled" and watcher is None else None)
+    if rows is not None:
+        from kfusion.kalman import compiled
+
+        recorder, kernel_run = rows
+        x_predicted, P_predicted = kernel_run.x_predicted, kernel_run.P_predicted
+        transitions = kernel_run.transitions
+        backward = compiled.rts_backward
 
     def on_row(row: int, outcome: UpdateOutcome) -> None:
         recorder.record(row, outcome)
@@ -294,13 +319,15 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
             transitions[row] = fusion._interval
         fusion._interval = np.eye(size)
 
-    process_recording(recording, fusion, on_row, watcher, measurement, offline=True)
+    if rows is None:
+        process_recording(recording, fusion, on_row, watcher, measurement, offline=True)
+        recorder.finish()
     x_filtered, P_filtered = recorder.x, recorder.P
     x_smoothed = np.full((m, size), np.nan)
     P_smoothed = np.full((m, size, size), np.nan)
     for first, stop in initialised_segments(recorder.outcome.astype(str),
                                             recorder.initialised):
-        x_smoothed[first:stop], P_smoothed[first:stop] = rts_backward(
+        x_smoothed[first:stop], P_smoothed[first:stop] = backward(
             x_filtered[first:stop], P_filtered[first:stop], x_predicted[first:stop],
             P_predicted[first:stop], transitions[first:stop])
     t = np.array(recording.mocap.t)
@@ -310,8 +337,9 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     # a gap the IMU did not cover (the forward pass's no-IMU rows) is lost for the smoother too
     smoothed_status = smoother_status(t, fixed, params.max_bridge_s, recorder.dead_reckoned)
 
-    position, variance = point_estimates(x_filtered, P_filtered, recorder.output_matrix,
-                                         recorder.output_offset)
+    position, variance = (compiled_points(recorder) if rows is not None else
+                          point_estimates(x_filtered, P_filtered, recorder.output_matrix,
+                                          recorder.output_offset))
     if watcher is not None:
         filtered_status, variance, _ = apply_monitor(filtered_status, variance,
                                                      recorder.scale_tables, recorder.allowed,
@@ -324,12 +352,15 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                            status=filtered_status, time_since_fix=since, method="kalman")
     status = smoothed_status
     filtered_variance = variance
-    position, variance = point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
-                                         recorder.output_offset)
+    position, variance = (compiled_points(recorder, x_smoothed, P_smoothed)
+                          if rows is not None else
+                          point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
+                                          recorder.output_offset))
     if measurement == MARKERS:
         variance = partial_occlusion_floor(recording, variance, filtered_variance)
     holdout = None if monitor is None else holdout_scales(recording, params, monitor,
-                                                          measurement=measurement)
+                                                          measurement=measurement,
+                                                          engine=engine)
     if holdout is not None:
         bins = len(holdout.params.horizon_edges_s)
         table = np.broadcast_to(holdout.scale_table(), (m, bins))
@@ -364,13 +395,15 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
 
 def smooth_recording(recording: Recording, params: KalmanParameters | None = None, *,
                      monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008
-                     measurement: str = BODY, **overrides: Any) -> TrackResult:
+                     measurement: str = BODY, engine: str = DEFAULT_ENGINE,
+                     **overrides: Any) -> TrackResult:
     """Method ``smoother``: fixed-interval RTS estimate at every mocap row (offline gap filling).
 
     Args:
         recording: the recording (occluded mocap rows are NaN).
         params: parameters; None builds them from ``recording.info.imu``.
         measurement: ``body`` (rigid-body fixes) or ``markers`` (marker-level fusion).
+        engine: ``compiled`` or ``filterpy`` (see :func:`run_smoother`).
         overrides: parameter fields to replace.
 
     Returns:
@@ -378,4 +411,4 @@ def smooth_recording(recording: Recording, params: KalmanParameters | None = Non
         (:func:`smoother_status`) and time since the last accepted fix (s, forward in time).
     """
     return run_smoother(recording, params, monitor=monitor, measurement=measurement,
-                        **overrides).result
+                        engine=engine, **overrides).result

@@ -17,7 +17,7 @@ not smaller); ``rms_mm`` the gap RMS; ``lost`` the fraction of gap samples repor
 Targets: coverage >= 0.97 (kalman), >= 0.95 (smoother) per recording, pooled >= 0.99; median
 bound / error <= 4.
 
-Run: ``python benchmarks/coverage.py [--quick] [--seeds N] [--no-monitor]``.
+Run: ``python benchmarks/bound_coverage.py [--quick] [--seeds N] [--no-monitor]``.
 """
 
 from __future__ import annotations

@@ -1,0 +1,228 @@
+"""Speed of the filter engines (issue 11). Prints a markdown table.
+
+Rows: a bare filterpy 9-state predict/update loop (the yardstick); the batch filter and the
+smoother per engine (``compiled``: numba kernels, ``filterpy``: KalmanFusion), without and with
+the consistency monitor (the default of ``kfusion track``; the monitor watches a filter event by
+event, so with it the filterpy engine runs whatever the engine setting); a sweep of N runs of
+60 s recordings (IMU 200 Hz) on 2 processes, extrapolated to 1000 runs; the smoother's stored
+bytes per row against the state's; numba's import and the cold start (first call in a fresh
+process with an empty JIT cache, then with the cache written).
+
+Run: ``python benchmarks/speed.py [--quick]``. Numbers are one run on a shared machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+from kfusion.kalman import run_filter, run_smoother
+from kfusion.recording import Recording
+from kfusion.simulate import OcclusionSpec, simulate
+
+IMU_RATE = 200.0
+MOCAP_RATE = 100.0
+
+
+def recording(seconds: float, seed: int = 0) -> Recording:
+    """A simulated arm lift of ``seconds`` with 0.1-0.3 s gaps (IMU 200 Hz, mocap 100 Hz)."""
+    return simulate("arm_lift", seed=seed, duration=seconds, imu_rate=IMU_RATE,
+                    mocap_rate=MOCAP_RATE,
+                    occlusions=OcclusionSpec(gap_range=(0.1, 0.3), spacing=1.0)).recording
+
+
+def bare_filterpy_loop(steps: int) -> float:
+    """Steps per second of filterpy's KalmanFilter: 9 states, one predict per step (F, B, Q,
+    u given) and an update every second step."""
+    from filterpy.kalman import KalmanFilter
+
+    kf = KalmanFilter(dim_x=9, dim_z=3, dim_u=9)
+    kf.x = np.zeros(9)
+    kf.P = np.eye(9)
+    kf.R = np.eye(3) * 1e-6
+    F = np.eye(9)
+    F[0:3, 3:6] = np.eye(3) * 0.005
+    B = np.zeros((9, 9))
+    B[0:6, 0:3] = 1e-4
+    Q = np.eye(9) * 1e-8
+    H = np.zeros((3, 9))
+    H[:, 0:3] = np.eye(3)
+    u = np.ones(9)
+    z = np.zeros(3)
+    start = time.perf_counter()
+    for step in range(steps):
+        kf.predict(u=u, B=B, F=F, Q=Q)
+        if step % 2:
+            kf.update(z, H=H)
+    return steps / (time.perf_counter() - start)
+
+
+def timed(function, *args, repeat: int = 1, **kwargs) -> float:  # type: ignore[no-untyped-def]
+    """Best wall time (s) of ``repeat`` calls."""
+    best = np.inf
+    for _ in range(repeat):
+        start = time.perf_counter()
+        function(*args, **kwargs)
+        best = min(best, time.perf_counter() - start)
+    return float(best)
+
+
+def sweep_task(arguments: tuple[int, float, str, bool]) -> float:
+    """One sweep run: simulate a recording and filter it; returns the filtering seconds."""
+    seed, seconds, engine, monitor = arguments
+    data = recording(seconds, seed)
+    start = time.perf_counter()
+    if monitor:
+        run_filter(data, engine=engine)
+    else:
+        run_filter(data, monitor=None, engine=engine)
+    return time.perf_counter() - start
+
+
+def sweep(runs: int, seconds: float, engine: str, monitor: bool) -> tuple[float, float]:
+    """(wall s, filtering s summed) of ``runs`` runs on 2 worker processes; each worker
+    compiles (or loads) the kernels once and reuses them for all its runs."""
+    start = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        # one warm-up task per worker: loading numba and the cached kernels, not per run
+        list(pool.map(sweep_task, [(1000 + w, 5.0, engine, monitor) for w in range(2)]))
+        warm = time.perf_counter()
+        filtering = list(pool.map(sweep_task, [(seed, seconds, engine, monitor)
+                                               for seed in range(runs)]))
+    end = time.perf_counter()
+    del start
+    return end - warm, float(sum(filtering))
+
+
+def smoother_bytes_per_row(seconds: float) -> tuple[int, int, int]:
+    """(state size n, bytes of x and P per row, bytes the smoother keeps per row)."""
+    run = run_smoother(recording(seconds), monitor=None)
+    n = run.x.shape[1]
+    state = 8 * (n + n * n)
+    kept = sum(array.nbytes for array in (run.x, run.P, run.x_filtered, run.P_filtered))
+    # the forward pass's per-row predictions and transitions (x, P, Phi), freed after the pass
+    kept += 8 * len(run.x) * (n + 2 * n * n)
+    return n, state, kept // len(run.x)
+
+
+def push_imu_median(engine: str, seconds: float) -> float:
+    """Median s per ``Tracker.push_imu`` (in order, a mocap frame pushed after its IMU
+    samples) over a recording of ``seconds``."""
+    from kfusion.tracker import Tracker
+
+    data = recording(seconds)
+    info = data.info
+    tracker = Tracker(info.imu_to_body, info.gravity, lever_arm=info.lever_arm, engine=engine)
+    imu, mocap = data.imu, data.mocap
+    durations = []
+    frame = 0
+    for row in range(len(imu.t)):
+        while frame < len(mocap.t) and mocap.t[frame] < imu.t[row]:
+            visible = bool(mocap.visible[frame])
+            tracker.push_mocap(mocap.t[frame], mocap.position[frame] if visible else None,
+                               mocap.quaternion[frame] if visible else None)
+            frame += 1
+        start = time.perf_counter()
+        tracker.push_imu(imu.t[row], imu.accelerometer[row], imu.gyroscope[row])
+        durations.append(time.perf_counter() - start)
+    return float(np.median(durations))
+
+
+COLD_SCRIPT = """
+import time
+start = time.perf_counter()
+import numba
+numba_import = time.perf_counter() - start
+from kfusion.kalman import run_filter
+from kfusion.simulate import simulate
+data = simulate("arm_lift", seed=0, duration=5.0).recording
+start = time.perf_counter()
+run_filter(data, monitor=None, engine="compiled")
+print(numba_import, time.perf_counter() - start)
+"""
+
+
+def cold_start() -> tuple[float, float, float]:
+    """(numba import s, first call with an empty cache s, first call with the cache written s),
+    each in a fresh process; the cache goes to a temporary NUMBA_CACHE_DIR."""
+    with tempfile.TemporaryDirectory() as cache:
+        environment = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        results = []
+        for _ in range(2):
+            output = subprocess.run([sys.executable, "-c", COLD_SCRIPT], env=environment,
+                                    capture_output=True, text=True, check=True).stdout.split()
+            results.append((float(output[0]), float(output[1])))
+    return results[1][0], results[0][1], results[1][1]
+
+
+def import_time() -> float:
+    """s to import kfusion.tracker in a fresh process (``python -X importtime``)."""
+    output = subprocess.run([sys.executable, "-X", "importtime", "-c", "import kfusion.tracker"],
+                            capture_output=True, text=True, check=True).stderr
+    last = [line for line in output.splitlines() if line.rstrip().endswith("kfusion.tracker")]
+    return int(last[-1].split("|")[1]) * 1e-6
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--quick", action="store_true",
+                        help="short recordings, 10 sweep runs, no cold start")
+    parser.add_argument("--sweep-runs", type=int, default=None, metavar="N",
+                        help="compiled sweep runs (default: 10 with --quick, else 40); "
+                        "1000 measures the issue's target directly (about 2 min)")
+    args = parser.parse_args()
+    seconds = 20.0 if args.quick else 60.0
+    runs = args.sweep_runs or (10 if args.quick else 40)
+    rows: list[tuple[str, str, str]] = []
+    bare = bare_filterpy_loop(5000 if args.quick else 20000)
+    rows.append(("bare filterpy 9-state predict/update loop", f"{bare:,.0f} steps/s", "1.00x"))
+    data = recording(seconds)
+    samples = len(data.imu)
+    run_filter(recording(5.0), monitor=None, engine="compiled")  # load or compile the kernels
+    for label, function in (("batch kalman", run_filter), ("smoother", run_smoother)):
+        for engine in ("compiled", "filterpy"):
+            for monitor in (False, True):
+                if monitor and (args.quick or function is run_smoother):
+                    continue
+                options = {} if monitor else {"monitor": None}
+                seconds_taken = timed(function, data, engine=engine, repeat=1 if monitor else 2,
+                                      **options)
+                rate = samples / seconds_taken
+                rows.append((f"{label}, engine {engine}" + (", monitor on" if monitor
+                                                             else ", no monitor"),
+                             f"{rate:,.0f} IMU samples/s", f"{rate / bare:.2f}x"))
+    for engine, count in (("compiled", runs), ("filterpy", min(max(4, runs // 4), 10))):
+        wall, filtering = sweep(count, 60.0, engine, monitor=False)
+        rows.append((f"sweep, {count} runs of 60 s at 200 Hz, 2 processes, engine {engine}, "
+                     "no monitor", f"{wall:.1f} s wall ({filtering:.1f} s filtering)",
+                     f"1000 runs: {wall * 1000 / count:.0f} s (extrapolated)"))
+    for engine in ("compiled", "filterpy"):
+        median = push_imu_median(engine, 10.0)
+        rows.append((f"Tracker.push_imu in order, engine {engine}", f"median {median * 1e6:.0f} µs",
+                     ""))
+    n, state, kept = smoother_bytes_per_row(seconds)
+    rows.append((f"smoother memory per row ({n} states)", f"{kept} bytes",
+                 f"{kept / state:.1f}x the state's {state} bytes (x, P)"))
+    rows.append(("import kfusion.tracker (no numba)", f"{import_time() * 1e3:.0f} ms", ""))
+    if not args.quick:
+        numba_import, cold, warm = cold_start()
+        rows.append(("import numba", f"{numba_import:.2f} s", ""))
+        rows.append(("first compiled call, empty JIT cache", f"{cold:.1f} s", ""))
+        rows.append(("first compiled call, cache written", f"{warm:.2f} s", ""))
+    print(f"Recording: {seconds:.0f} s simulated arm lift, {samples} IMU samples at 200 Hz, "
+          f"mocap 100 Hz with 0.1-0.3 s gaps.\n")
+    print("| path | speed | ratio |")
+    print("|---|---|---|")
+    for row in rows:
+        print("| " + " | ".join(row) + " |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1016 @@
+"""The compiled engine: the position filter of :mod:`kfusion.kalman.filter` as numba kernels.
+
+:class:`kfusion.kalman.KalmanFusion` (on filterpy) is the readable reference; this module computes
+the same thing with small pure step functions compiled by numba (``njit(cache=True)``: the
+machine code is cached on disk next to this file, or in numba's fallback cache directory), and
+a whole-loop kernel, :func:`filter_events`, that runs a recording's merged events
+(:func:`kfusion.kalman.events.merge_events`, called outside the kernel) in one call. Every step
+is the filter's, equation for equation and branch for branch (first-order hold, IMU outages,
+saturation, orientation gating, chi-square gate, re-acquisition, resets), so the two engines
+agree to rounding (tests/test_compiled_engine.py: within 1e-9 m, same outcomes and statuses).
+
+State, in flat float arrays (numba compiles plain arrays best):
+
+* ``x`` (n,), ``P`` (n, n): the position filter, layout from :mod:`kfusion.kalman.layout`;
+* ``orientation`` (15,): ``q_global_imu`` [w, x, y, z] (0:4), gyroscope bias (4:7, rad/s),
+  covariance ``(P_tt, P_tb, P_bb)`` (7:10), rotation since the last fix (10:13, rad), scale
+  variance peak (13), initialised flag (14) (:class:`kfusion.kalman.orientation.OrientationState`);
+* ``scalars`` (:data:`SCALAR_COUNT`,): times, the held sample and flags; ``NaN`` stands for the
+  reference filter's ``None``;
+* ``counters`` (:data:`COUNTER_NAMES` order) as int64.
+
+Parameters go in as one float array ``config`` (:func:`pack_config`). numba is imported only
+when a kernel is first needed (:func:`kernels`), so ``import kfusion.kalman`` stays light.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from kfusion import streamhealth
+from kfusion.conventions import SMALL_ANGLE
+from kfusion.kalman import model
+from kfusion.kalman.filter import (
+    ACCEPTED,
+    GATED,
+    INITIALISED,
+    OCCLUDED,
+    REACQUIRED,
+)
+from kfusion.kalman.layout import layout_for
+from kfusion.kalman.parameters import KalmanParameters
+
+OUTCOME_NAMES: Final = (ACCEPTED, OCCLUDED, GATED, REACQUIRED, INITIALISED)
+"""Outcome codes of the kernels: the index in this tuple."""
+_ACCEPTED, _OCCLUDED, _GATED, _REACQUIRED, _INITIALISED = range(5)
+
+# scalars: indices into the filter's scalar state
+TIME, IMU_STAMP, IMU_TIME = 0, 1, 2
+ACCELEROMETER, GYROSCOPE = 3, 6  # held sample (3 each)
+ACCELEROMETER_EXTRA, GYROSCOPE_EXTRA = 9, 10
+LOW_PASS = 11  # low-passed specific force (3); NaN in LOW_PASS: none yet
+LAST_FIX, LAST_NIS, LAST_ORIENTATION_FIX, IMU_INTERVAL = 14, 15, 16, 17
+INITIALISED_FLAG, LAST_FRAME_FUSED, OUTAGE_SINCE_FIX = 18, 19, 20
+SCALAR_COUNT: Final = 21
+
+# config: indices into the packed parameters
+(C_ACC_DENSITY, C_ACC_WALK, C_GYRO_DENSITY, C_GYRO_WALK, C_POSITION_NOISE,
+ C_ORIENTATION_VARIANCE, C_INITIAL_BIAS_STD, C_INITIAL_GYRO_BIAS_VARIANCE, C_INITIAL_VELOCITY_STD,
+ C_ACC_SCALE, C_GYRO_SCALE_VARIANCE, C_LEVER_STD, C_LATENCY, C_ACC_RANGE, C_GYRO_RANGE, C_GATE,
+ C_GATE_MIN, C_REACQUIRE, C_MAX_BRIDGE, C_DROPOUT, C_TILT_INFLATION, C_GATING) = range(22)
+C_Q_BODY_IMU = 22  # (4)
+C_R_IMU_BODY = 26  # (9) row-major
+C_GRAVITY = 35  # (3)
+C_LEVER = 38  # (3) given lever arm
+C_LEVER_GIVEN = 41
+C_POSITION, C_VELOCITY, C_BIAS, C_LEVER_STATE = 42, 43, 44, 45  # layout block starts (-1: none)
+CONFIG_SIZE: Final = 46
+
+COUNTER_INDEX: Final = {name: index for index, name in enumerate(
+    ("predictions", "imu_rejected", "imu_duplicates", "imu_dropouts", "imu_late",
+     "accelerometer_saturated", "gyroscope_saturated", "updates", "occluded", "gated",
+     "reacquired", "initialised", "no_orientation", "resets", "imu_outages",
+     "orientation_gated"))}
+
+
+def pack_config(params: KalmanParameters, q_body_imu: tuple[float, float, float, float],
+                R_imu_body: NDArray[np.float64], gravity: NDArray[np.float64],
+                lever_arm: NDArray[np.float64] | None, size: int) -> NDArray[np.float64]:
+    """The kernels' parameter array (:data:`CONFIG_SIZE`,) from the filter's configuration."""
+    config = np.zeros(CONFIG_SIZE)
+    config[C_ACC_DENSITY] = params.accelerometer_noise_density
+    config[C_ACC_WALK] = params.accelerometer_bias_random_walk
+    config[C_GYRO_DENSITY] = params.gyroscope_noise_density
+    config[C_GYRO_WALK] = params.gyroscope_bias_random_walk
+    config[C_POSITION_NOISE] = params.mocap_position_noise
+    config[C_ORIENTATION_VARIANCE] = params.mocap_orientation_noise ** 2
+    config[C_INITIAL_BIAS_STD] = params.initial_bias_std
+    config[C_INITIAL_GYRO_BIAS_VARIANCE] = params.initial_gyroscope_bias_std ** 2
+    config[C_INITIAL_VELOCITY_STD] = params.initial_velocity_std
+    config[C_ACC_SCALE] = params.accelerometer_scale_error
+    config[C_GYRO_SCALE_VARIANCE] = params.gyroscope_scale_error ** 2
+    config[C_LEVER_STD] = params.lever_arm_std
+    config[C_LATENCY] = params.imu_latency_s
+    config[C_ACC_RANGE] = params.accelerometer_range
+    config[C_GYRO_RANGE] = params.gyroscope_range
+    config[C_GATE] = model.gate_threshold(params.gate_probability)
+    config[C_GATE_MIN] = params.gate_min_innovation
+    config[C_REACQUIRE] = params.reacquire_after_s
+    config[C_MAX_BRIDGE] = params.max_bridge_s
+    config[C_DROPOUT] = params.imu_dropout_s
+    config[C_TILT_INFLATION] = params.tilt_error_inflation
+    config[C_GATING] = 1.0 if params.gating else 0.0
+    config[C_Q_BODY_IMU:C_Q_BODY_IMU + 4] = q_body_imu
+    config[C_R_IMU_BODY:C_R_IMU_BODY + 9] = np.asarray(R_imu_body, dtype=float).ravel()
+    config[C_GRAVITY:C_GRAVITY + 3] = gravity
+    if lever_arm is not None:
+        config[C_LEVER:C_LEVER + 3] = lever_arm
+        config[C_LEVER_GIVEN] = 1.0
+    layout = layout_for(size == model.LEVER_SIZE)
+    config[C_POSITION] = layout.start("position")
+    config[C_VELOCITY] = layout.start("velocity")
+    config[C_BIAS] = layout.start("bias")
+    config[C_LEVER_STATE] = layout.start("lever_arm") if layout.has("lever_arm") else -1
+    return config
+
+
+def initial_scalars() -> NDArray[np.float64]:
+    """The scalar state of a new filter: every time None (NaN), nothing held, flags off."""
+    scalars = np.full(SCALAR_COUNT, np.nan)
+    scalars[ACCELEROMETER_EXTRA] = scalars[GYROSCOPE_EXTRA] = 0.0
+    scalars[INITIALISED_FLAG] = scalars[LAST_FRAME_FUSED] = scalars[OUTAGE_SINCE_FIX] = 0.0
+    return scalars
+
+
+def initial_orientation() -> NDArray[np.float64]:
+    """An uninitialised orientation state: identity quaternion, zero bias and covariance."""
+    orientation = np.zeros(15)
+    orientation[0] = 1.0
+    return orientation
+
+
+# ---------------------------------------------------------------------------------------------
+# The step functions, compiled by numba (machine code cached on disk: cache=True).
+# ---------------------------------------------------------------------------------------------
+
+
+_SMALL_ANGLE = SMALL_ANGLE
+_UNKNOWN_VARIANCE = streamhealth.ORIENTATION_UNKNOWN_VARIANCE
+_NO_IMU_DENSITY = streamhealth.NO_IMU_ACCELERATION_DENSITY
+_HOLD_MIN = streamhealth.HOLD_MIN_S
+_HOLD_INTERVALS = streamhealth.HOLD_INTERVALS
+_ORIENTATION_MIN_ANGLE = streamhealth.ORIENTATION_GATE_MIN_ANGLE
+_NOISE_QUANTILE = model.NOISE_CHANGE_QUANTILE
+_LOW_PASS_TAU = model.LOW_PASS_TIME_CONSTANT
+_SCALE_COHERENCE = model.SCALE_ERROR_COHERENCE_S
+_SATURATION_FRACTION = model.SATURATION_FRACTION
+_IMPLAUSIBLE = model.IMPLAUSIBLE_SAMPLE
+
+
+@njit(cache=True)
+def quaternion_product(a, b):
+    """Hamilton product ``a ⊗ b`` (4,) of [w, x, y, z] quaternions."""
+    out = np.empty(4)
+    out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
+    out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
+    out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1]
+    out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
+    return out
+
+
+@njit(cache=True)
+def normalise(q):
+    """``q / |q|``."""
+    inverse = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    out = np.empty(4)
+    for i in range(4):
+        out[i] = q[i] * inverse
+    return out
+
+
+@njit(cache=True)
+def quaternion_exp(x, y, z):
+    """``Exp(theta) = [cos(|theta|/2), sin(|theta|/2) theta/|theta|]``; ``[1, theta/2]``
+    below SMALL_ANGLE; NaN for a non-finite theta."""
+    out = np.empty(4)
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < _SMALL_ANGLE:
+        out[0], out[1], out[2], out[3] = 1.0, 0.5 * x, 0.5 * y, 0.5 * z
+    elif not math.isfinite(angle):
+        out[:] = math.nan
+    else:
+        scale = math.sin(0.5 * angle) / angle
+        out[0], out[1], out[2], out[3] = math.cos(0.5 * angle), scale * x, scale * y, scale * z
+    return out
+
+
+@njit(cache=True)
+def quaternion_log(q):
+    """Rotation vector theta (3,) rad with ``Exp(theta) = ±q``."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    out = np.empty(3)
+    norm = math.sqrt(x * x + y * y + z * z)
+    if norm < _SMALL_ANGLE:
+        out[0], out[1], out[2] = 2.0 * x, 2.0 * y, 2.0 * z
+        return out
+    scale = 2.0 * math.atan2(norm, w) / norm
+    out[0], out[1], out[2] = scale * x, scale * y, scale * z
+    return out
+
+
+@njit(cache=True)
+def conjugate(q):
+    """``q* = [w, -x, -y, -z]``."""
+    out = np.empty(4)
+    out[0], out[1], out[2], out[3] = q[0], -q[1], -q[2], -q[3]
+    return out
+
+
+@njit(cache=True)
+def rotation_matrix(q):
+    """``R`` (3, 3) of a unit quaternion (kfusion.conventions' entries)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    R = np.empty((3, 3))
+    R[0, 0] = 1 - 2 * (y * y + z * z)
+    R[0, 1] = 2 * (x * y - w * z)
+    R[0, 2] = 2 * (x * z + w * y)
+    R[1, 0] = 2 * (x * y + w * z)
+    R[1, 1] = 1 - 2 * (x * x + z * z)
+    R[1, 2] = 2 * (y * z - w * x)
+    R[2, 0] = 2 * (x * z - w * y)
+    R[2, 1] = 2 * (y * z + w * x)
+    R[2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+@njit(cache=True)
+def matmul(A, B):
+    """``A B`` by plain loops (small matrices: cheaper than a BLAS call)."""
+    rows, inner = A.shape
+    columns = B.shape[1]
+    out = np.zeros((rows, columns))
+    for i in range(rows):
+        for k in range(inner):
+            a = A[i, k]
+            if a != 0.0:
+                for j in range(columns):
+                    out[i, j] += a * B[k, j]
+    return out
+
+
+@njit(cache=True)
+def matvec(A, v):
+    """``A v``."""
+    out = np.zeros(A.shape[0])
+    for i in range(A.shape[0]):
+        total = 0.0
+        for k in range(A.shape[1]):
+            total += A[i, k] * v[k]
+        out[i] = total
+    return out
+
+
+@njit(cache=True)
+def symmetrise(P):
+    """``P <- (P + P^T) / 2`` in place."""
+    n = P.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            value = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = value
+            P[j, i] = value
+
+
+@njit(cache=True)
+def covariance_predict(x, P, F, B, u, Q):
+    """Kalman predict in place: ``x <- F x + B u``, ``P <- F P F^T + Q``, then
+    symmetrised."""
+    x[:] = matvec(F, x) + matvec(B, u)
+    # F P F^T = F (F P)^T for a symmetric P: both products have the sparse F on the left
+    P[:, :] = matmul(F, matmul(F, P).T.copy()) + Q
+    symmetrise(P)
+
+
+@njit(cache=True)
+def covariance_update(x, P, z, H, R):
+    """Kalman update in place (filterpy's Joseph form), then symmetrised::
+
+        y = z - H x,  S = H P H^T + R,  K = P H^T S^-1
+        x <- x + K y,  P <- (I - K H) P (I - K H)^T + K R K^T
+    """
+    n = x.shape[0]
+    y = z - matvec(H, x)
+    PHT = matmul(P, H.T.copy())
+    S = matmul(H, PHT) + R
+    K = matmul(PHT, np.linalg.inv(S))
+    x[:] = x + matvec(K, y)
+    I_KH = np.eye(n) - matmul(K, H)
+    P[:, :] = matmul(matmul(I_KH, P), I_KH.T.copy()) + matmul(matmul(K, R), K.T.copy())
+    symmetrise(P)
+
+
+@njit(cache=True)
+def interval_matrices(R0, R1, dt, n, config):
+    """F (n, n) and B (n, 9) over dt with ``R_global_imu`` R0, R1 at the ends::
+
+        F = [[I, dt I, -dt^2 (R0/3 + R1/6)], [0, I, -dt (R0 + R1)/2], [0, 0, I]] (+ I on l)
+        B = [[dt^2 R0/3, dt^2 R1/6, dt^2/2 I], [dt R0/2, dt R1/2, dt I], [0, 0, 0]]
+    (:func:`kfusion.kalman.model.fill_interval`)."""
+    p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
+    F = np.eye(n)
+    B = np.zeros((n, 9))
+    dt2 = dt * dt
+    for i in range(3):
+        F[p + i, v + i] = dt
+        for j in range(3):
+            position_start = R0[i, j] * (dt2 / 3.0)
+            position_end = R1[i, j] * (dt2 / 6.0)
+            velocity_start = R0[i, j] * (0.5 * dt)
+            velocity_end = R1[i, j] * (0.5 * dt)
+            F[p + i, b + j] = -(position_start + position_end)
+            F[v + i, b + j] = -(velocity_start + velocity_end)
+            B[p + i, j] = position_start
+            B[p + i, 3 + j] = position_end
+            B[v + i, j] = velocity_start
+            B[v + i, 3 + j] = velocity_end
+        B[p + i, 6 + i] = 0.5 * dt2
+        B[v + i, 6 + i] = dt
+    return F, B
+
+
+@njit(cache=True)
+def process_noise(dt, n, acceleration_variance, bias_variance, config):
+    """Q (n, n) (:func:`kfusion.kalman.model.process_noise`)::
+
+        Q_pp = sigma_a^2 dt^3 + e dt^4/4,  Q_pv = sigma_a^2 dt^2 + e dt^3/2,
+        Q_vv = sigma_a^2 dt + e dt^2,      Q_bb = sigma_b^2 dt + bias_variance
+    """
+    p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
+    Q = np.zeros((n, n))
+    a2 = config[C_ACC_DENSITY] * config[C_ACC_DENSITY]
+    extra = acceleration_variance
+    dt2 = dt * dt
+    pp = a2 * dt2 * dt + extra * dt2 * dt2 / 4.0
+    pv = a2 * dt2 + extra * dt2 * dt / 2.0
+    vv = a2 * dt + extra * dt2
+    bb = config[C_ACC_WALK] * config[C_ACC_WALK] * dt + bias_variance
+    for axis in range(3):
+        Q[p + axis, p + axis] = pp
+        Q[p + axis, v + axis] = pv
+        Q[v + axis, p + axis] = pv
+        Q[v + axis, v + axis] = vv
+        Q[b + axis, b + axis] = bb
+    return Q
+
+
+@njit(cache=True)
+def hold_horizon(imu_interval, dropout):
+    """``min(dropout, max(HOLD_MIN_S, HOLD_INTERVALS interval))`` (HOLD_MIN_S while the
+    interval is unknown) (:func:`kfusion.streamhealth.hold_horizon`)."""
+    if not math.isfinite(imu_interval):
+        return min(dropout, _HOLD_MIN)
+    return min(dropout, max(_HOLD_MIN, _HOLD_INTERVALS * imu_interval))
+
+
+@njit(cache=True)
+def dead_reckoning_until(scalars, config):
+    """-inf without IMU or after an outage since the fix, else imu_time + hold
+    (:func:`kfusion.streamhealth.dead_reckoning_until`)."""
+    if math.isnan(scalars[IMU_TIME]) or scalars[OUTAGE_SINCE_FIX] != 0.0:
+        return -math.inf
+    return scalars[IMU_TIME] + hold_horizon(scalars[IMU_INTERVAL], config[C_DROPOUT])
+
+
+@njit(cache=True)
+def orientation_propagate(orientation, w0, w1, dt, extra, config):
+    """``q <- normalise(q ⊗ Exp(((w0 + w1)/2 - b_g) dt))``, covariance
+    ``P' = F P F^T + Q`` with ``F = [[1, -dt], [0, 1]]``
+    (:meth:`kfusion.kalman.orientation.OrientationTracker.propagate`)."""
+    if orientation[14] == 0.0 or dt <= 0:
+        return
+    rate = np.empty(3)
+    for i in range(3):
+        rate[i] = 0.5 * (w0[i] + w1[i]) - orientation[4 + i]
+    step = quaternion_exp(rate[0] * dt, rate[1] * dt, rate[2] * dt)
+    orientation[0:4] = normalise(quaternion_product(orientation[0:4], step))
+    scale_variance = config[C_GYRO_SCALE_VARIANCE]
+    if scale_variance > 0.0:
+        rx = orientation[10] + rate[0] * dt
+        ry = orientation[11] + rate[1] * dt
+        rz = orientation[12] + rate[2] * dt
+        orientation[10], orientation[11], orientation[12] = rx, ry, rz
+        peak = max(orientation[13], scale_variance * (rx * rx + ry * ry + rz * rz))
+        extra += peak - orientation[13]
+        orientation[13] = peak
+    angle, cross, bias = orientation[7], orientation[8], orientation[9]
+    g2 = config[C_GYRO_DENSITY] * config[C_GYRO_DENSITY]
+    b2 = config[C_GYRO_WALK] * config[C_GYRO_WALK]
+    orientation[7] = (angle - 2.0 * dt * cross + dt * dt * bias + g2 * dt
+                      + b2 * dt * dt * dt / 3.0 + extra)
+    orientation[8] = cross - dt * bias - 0.5 * b2 * dt * dt
+    orientation[9] = bias + b2 * dt
+
+
+@njit(cache=True)
+def orientation_correct(orientation, q_measured, config):
+    """Two-state Kalman correction per axis: ``S = P_tt + sigma_m^2``,
+    ``K = [P_tt, P_tb] / S``, ``q <- q ⊗ Exp(K_t z)``, ``b_g <- b_g + K_b z``,
+    ``P <- (I - K H) P`` (:meth:`OrientationTracker.correct`)."""
+    innovation = quaternion_log(quaternion_product(conjugate(orientation[0:4]),
+                                                   q_measured))
+    orientation[10:14] = 0.0
+    angle, cross, bias = orientation[7], orientation[8], orientation[9]
+    S = angle + config[C_ORIENTATION_VARIANCE]
+    if S <= 0.0:
+        orientation[0:4] = normalise(q_measured)
+        return
+    gain_angle = angle / S
+    gain_bias = cross / S
+    correction = quaternion_exp(gain_angle * innovation[0], gain_angle * innovation[1],
+                                gain_angle * innovation[2])
+    orientation[0:4] = normalise(quaternion_product(orientation[0:4], correction))
+    for i in range(3):
+        orientation[4 + i] = orientation[4 + i] + gain_bias * innovation[i]
+    orientation[7] = (1.0 - gain_angle) * angle
+    orientation[8] = (1.0 - gain_angle) * cross
+    orientation[9] = bias - gain_bias * cross
+
+
+@njit(cache=True)
+def state_finite(x, P, orientation):
+    """False when a propagation overflowed."""
+    total = orientation[7] + orientation[8] + orientation[9] + (
+        orientation[0] + orientation[1] + orientation[2] + orientation[3])
+    return math.isfinite(total) and np.isfinite(x).all() and np.isfinite(P).all()
+
+
+@njit(cache=True)
+def reset(x, P, orientation, scalars, counters):
+    """Forget position and orientation (``resets``): lost until the next fix."""
+    scalars[INITIALISED_FLAG] = 0.0
+    orientation[:] = 0.0
+    orientation[0] = 1.0
+    x[:] = 0.0
+    P[:, :] = np.eye(x.shape[0])
+    scalars[LAST_FIX] = math.nan
+    scalars[LAST_ORIENTATION_FIX] = math.nan
+    counters[13] += 1
+
+
+@njit(cache=True)
+def accumulate_transition(interval, F):
+    """``Phi <- F Phi``: the product of the transitions since the last mocap row, which the
+    smoother needs (``cov(x_k, x_{k+1|k}) = P_k Phi^T``). An empty ``interval``: not kept."""
+    if interval.shape[0] > 0:
+        interval[:, :] = matmul(F, interval)
+
+
+@njit(cache=True)
+def advance_without_imu(t, x, P, orientation, scalars, config, counters, interval):
+    """No IMU over [time, t]: ``p' = p + v dt``, ``v' = v``, white acceleration q::
+
+        Q_pp = q^2 dt^3/3, Q_pv = q^2 dt^2/2, Q_vv = q^2 dt, Q_bb = sigma_b^2 dt
+    and the orientation becomes unknown (:meth:`KalmanFusion._advance_without_imu`)."""
+    dt = t - scalars[TIME]
+    n = x.shape[0]
+    if scalars[INITIALISED_FLAG] != 0.0:
+        p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
+        F = np.eye(n)
+        Q = np.zeros((n, n))
+        q2 = _NO_IMU_DENSITY * _NO_IMU_DENSITY
+        walk2 = config[C_ACC_WALK] * config[C_ACC_WALK]
+        for i in range(3):
+            F[p + i, v + i] = dt
+            Q[p + i, p + i] = q2 * dt ** 3 / 3.0
+            Q[p + i, v + i] = q2 * dt ** 2 / 2.0
+            Q[v + i, p + i] = q2 * dt ** 2 / 2.0
+            Q[v + i, v + i] = q2 * dt
+            Q[b + i, b + i] = walk2 * dt
+        covariance_predict(x, P, F, np.zeros((n, 9)), np.zeros(9), Q)
+        accumulate_transition(interval, F)
+        if scalars[OUTAGE_SINCE_FIX] == 0.0:
+            counters[14] += 1
+        scalars[OUTAGE_SINCE_FIX] = 1.0
+        if not state_finite(x, P, orientation):
+            reset(x, P, orientation, scalars, counters)
+    if orientation[14] != 0.0:
+        orientation[7] = _UNKNOWN_VARIANCE
+        orientation[8] = 0.0
+    scalars[TIME] = t
+
+
+@njit(cache=True)
+def squared_distance(a, b):
+    dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
+    return dx * dx + dy * dy + dz * dz
+
+
+@njit(cache=True)
+def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config,
+                     counters, interval):
+    """Predict over [time, t] with the IMU (:meth:`KalmanFusion._advance_with_imu`): the
+    specific force and rate linear between the interval's ends (or the held sample held),
+    the orientation propagated, then ``x <- F x + B u``, ``P <- F P F^T + Q`` with
+    ``u = [f0; f1; g]`` (:mod:`kfusion.kalman.model`)."""
+    dt = t - scalars[TIME]
+    n = x.shape[0]
+    if not math.isnan(scalars[ACCELEROMETER]) and orientation[14] != 0.0:
+        f0 = scalars[ACCELEROMETER:ACCELEROMETER + 3].copy()
+        omega0 = scalars[GYROSCOPE:GYROSCOPE + 3].copy()
+        if new_sample:
+            f1 = f_end
+            omega1 = omega_end
+            if scalars[TIME] > scalars[IMU_TIME]:
+                weight = ((scalars[TIME] - scalars[IMU_TIME])
+                          / (t - scalars[IMU_TIME]))
+                for i in range(3):
+                    f0[i] = f0[i] + weight * (f_end[i] - f0[i])
+                    omega0[i] = omega0[i] + weight * (omega_end[i] - omega0[i])
+        else:
+            f1 = f0
+            omega1 = omega0
+        R0 = rotation_matrix(orientation[0:4])
+        angle_variance = orientation[7]
+        orientation_propagate(orientation, omega0, omega1, dt,
+                              scalars[GYROSCOPE_EXTRA] * dt * dt, config)
+        R1 = rotation_matrix(orientation[0:4])
+        had_low_pass = not math.isnan(scalars[LOW_PASS])
+        previous_low_pass = scalars[LOW_PASS:LOW_PASS + 3].copy()
+        if had_low_pass:
+            weight = -math.expm1(-dt / _LOW_PASS_TAU)
+            for i in range(3):
+                scalars[LOW_PASS + i] = (previous_low_pass[i]
+                                         + weight * (f1[i] - previous_low_pass[i]))
+        else:
+            scalars[LOW_PASS:LOW_PASS + 3] = f1
+        if scalars[INITIALISED_FLAG] != 0.0:
+            force_squared = 0.5 * (f0[0] * f0[0] + f0[1] * f0[1] + f0[2] * f0[2]
+                                   + f1[0] * f1[0] + f1[1] * f1[1] + f1[2] * f1[2])
+            bias_variance = config[C_TILT_INFLATION] * force_squared * max(
+                orientation[7] - angle_variance, 0.0)
+            scale = config[C_ACC_SCALE]
+            if scale > 0.0 and had_low_pass and dt > 0.0:
+                change = squared_distance(scalars[LOW_PASS:LOW_PASS + 3], previous_low_pass)
+                bias_variance += scale * scale * change * _SCALE_COHERENCE / dt
+            noise_variance = config[C_ACC_DENSITY] ** 2 / dt
+            acceleration_variance = scalars[ACCELEROMETER_EXTRA] + max(
+                squared_distance(f0, f1) - 2.0 * _NOISE_QUANTILE * noise_variance,
+                0.0) / 36.0
+            F, B = interval_matrices(R0, R1, dt, n, config)
+            u = np.empty(9)
+            u[0:3] = f0
+            u[3:6] = f1
+            u[6:9] = config[C_GRAVITY:C_GRAVITY + 3]
+            Q = process_noise(dt, n, acceleration_variance, bias_variance, config)
+            covariance_predict(x, P, F, B, u, Q)
+            accumulate_transition(interval, F)
+        if not state_finite(x, P, orientation):
+            reset(x, P, orientation, scalars, counters)
+    scalars[TIME] = t
+
+
+@njit(cache=True)
+def advance(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config, counters,
+            interval):
+    """Propagate to t: with the IMU where it covers the interval, the no-IMU model
+    after (:func:`kfusion.streamhealth.imu_interval_split`)."""
+    if math.isnan(scalars[TIME]):
+        scalars[TIME] = t
+        return
+    if t - scalars[TIME] <= 0.0:
+        return
+    state_time = scalars[TIME]
+    imu_time = scalars[IMU_TIME]
+    if math.isnan(imu_time):
+        covered = state_time
+    elif new_sample:
+        covered = t if t - imu_time <= config[C_DROPOUT] else state_time
+    else:
+        hold = hold_horizon(scalars[IMU_INTERVAL], config[C_DROPOUT])
+        covered = min(max(imu_time + hold, state_time), t)
+    if covered < t:
+        if covered > state_time:
+            advance_with_imu(covered, False, f_end, omega_end, x, P, orientation, scalars,
+                             config, counters, interval)
+        advance_without_imu(t, x, P, orientation, scalars, config, counters, interval)
+        return
+    advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config,
+                     counters, interval)
+
+
+@njit(cache=True)
+def limit(sample, sensor_range):
+    """Clip a saturated sample (an axis at 99.9 % of the range or beyond) to the range;
+    returns (sample, extra variance ``(range/2)^2`` or 0)."""
+    largest = max(abs(sample[0]), abs(sample[1]), abs(sample[2]))
+    if largest < _SATURATION_FRACTION * sensor_range:
+        return sample.copy(), 0.0
+    clipped = np.empty(3)
+    for i in range(3):
+        clipped[i] = min(max(sample[i], -sensor_range), sensor_range)
+    return clipped, 0.25 * sensor_range * sensor_range
+
+
+@njit(cache=True)
+def predict_step(stamp, f_raw, omega_raw, x, P, orientation, scalars, config, counters,
+                 interval):
+    """One finite IMU sample with a stamp after the last (:meth:`KalmanFusion.
+    _predict_valid`): reject _IMPLAUSIBLE values, clip saturated ones, advance to
+    ``t = stamp - latency`` with the first-order hold, hold the sample."""
+    largest = 0.0
+    for i in range(3):
+        largest = max(largest, abs(f_raw[i]), abs(omega_raw[i]))
+    if largest > _IMPLAUSIBLE:
+        counters[1] += 1
+        return
+    f, acc_extra = limit(f_raw, config[C_ACC_RANGE])
+    if acc_extra != 0.0:
+        counters[5] += 1
+    omega, gyro_extra = limit(omega_raw, config[C_GYRO_RANGE])
+    if gyro_extra != 0.0:
+        counters[6] += 1
+    t = stamp - config[C_LATENCY]
+    imu_time = scalars[IMU_TIME]
+    if not math.isnan(imu_time) and t - imu_time > config[C_DROPOUT]:
+        counters[3] += 1
+    if not math.isnan(scalars[TIME]) and t <= scalars[TIME] and not math.isnan(imu_time):
+        if t < scalars[TIME]:
+            counters[4] += 1
+    else:
+        advance(t, True, f, omega, x, P, orientation, scalars, config, counters, interval)
+    scalars[ACCELEROMETER:ACCELEROMETER + 3] = f
+    scalars[GYROSCOPE:GYROSCOPE + 3] = omega
+    scalars[ACCELEROMETER_EXTRA] = acc_extra
+    scalars[GYROSCOPE_EXTRA] = gyro_extra
+    if not math.isnan(imu_time):
+        scalars[IMU_INTERVAL] = t - imu_time
+    scalars[IMU_STAMP] = stamp
+    scalars[IMU_TIME] = t
+    counters[0] += 1
+
+
+@njit(cache=True)
+def output_map(q_global_imu, n, config):
+    """(H, c): rigid-body point ``= H x + c`` at ``q_global_imu``
+    (:meth:`KalmanFusion._output_map`)."""
+    p = int(config[C_POSITION])
+    lever_state = int(config[C_LEVER_STATE])
+    H = np.zeros((3, n))
+    offset = np.zeros(3)
+    for i in range(3):
+        H[i, p + i] = 1.0
+    if config[C_LEVER_GIVEN] == 0.0 and lever_state < 0:
+        return H, offset
+    R_imu_body = config[C_R_IMU_BODY:C_R_IMU_BODY + 9].copy().reshape(3, 3)
+    R_global_body = matmul(rotation_matrix(q_global_imu), R_imu_body)
+    if lever_state >= 0:
+        for i in range(3):
+            for j in range(3):
+                H[i, lever_state + j] = -R_global_body[i, j]
+        return H, offset
+    offset[:] = -matvec(R_global_body, config[C_LEVER:C_LEVER + 3].copy())
+    return H, offset
+
+
+@njit(cache=True)
+def mark_fix(t, scalars, counters):
+    scalars[OUTAGE_SINCE_FIX] = 0.0
+    scalars[LAST_FIX] = t
+    scalars[LAST_FRAME_FUSED] = 1.0
+    counters[7] += 1
+
+
+@njit(cache=True)
+def initialise(t, z, H, offset, x, P, scalars, config, counters):
+    """First fix: ``x = [z - c, 0, 0(, 0)]``, ``P = P0`` (:func:`kfusion.kalman.model.
+    initial_covariance`, with the lever-arm correlation ``sigma_l^2 R_gb``)."""
+    p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
+    lever_state = int(config[C_LEVER_STATE])
+    x[:] = 0.0
+    P[:, :] = 0.0
+    position_variance = config[C_POSITION_NOISE] ** 2
+    velocity_variance = config[C_INITIAL_VELOCITY_STD] ** 2
+    bias_variance = config[C_INITIAL_BIAS_STD] ** 2
+    for i in range(3):
+        x[p + i] = z[i] - offset[i]
+        P[p + i, p + i] = position_variance
+        P[v + i, v + i] = velocity_variance
+        P[b + i, b + i] = bias_variance
+    if lever_state >= 0:
+        lever_variance = config[C_LEVER_STD] ** 2
+        for i in range(3):
+            P[p + i, p + i] += lever_variance
+            P[lever_state + i, lever_state + i] = lever_variance
+            for j in range(3):
+                R = -H[i, lever_state + j]  # R_global_body
+                P[p + i, lever_state + j] = lever_variance * R
+                P[lever_state + j, p + i] = lever_variance * R
+    scalars[INITIALISED_FLAG] = 1.0
+    mark_fix(t, scalars, counters)
+    counters[11] += 1
+
+
+@njit(cache=True)
+def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation, scalars,
+                config, counters, interval, prior_x, prior_P):
+    """One mocap frame (:meth:`KalmanFusion._update_valid`): advance to t holding the
+    sample, gate the orientation, initialise or gate and fuse the position::
+
+        y = z - c - H x,  S = H P H^T + R,  NIS = y^T S^-1 y
+        gated if NIS > gate and |y| > gate_min while the prediction is valid
+    Returns (outcome code, NIS, True when the fix was fused into a prediction, whose state and
+    covariance are then in ``prior_x``, ``prior_P``)."""
+    n = x.shape[0]
+    advance(t, False, scalars[ACCELEROMETER:ACCELEROMETER + 3],
+            scalars[GYROSCOPE:GYROSCOPE + 3], x, P, orientation, scalars, config, counters,
+        interval)
+    scalars[LAST_FRAME_FUSED] = 0.0
+    if not visible:
+        counters[8] += 1
+        return _OCCLUDED, math.nan, False
+    has_orientation = has_quaternion
+    q_global_imu = orientation[0:4].copy()
+    if has_quaternion:
+        q_global_imu = normalise(quaternion_product(q_global_body,
+                                                    config[C_Q_BODY_IMU:C_Q_BODY_IMU + 4]))
+    if (has_quaternion and orientation[14] != 0.0 and config[C_GATING] != 0.0
+            and not math.isnan(scalars[LAST_ORIENTATION_FIX])
+            and t - scalars[LAST_ORIENTATION_FIX] <= config[C_MAX_BRIDGE]):
+        innovation = quaternion_log(quaternion_product(conjugate(orientation[0:4]),
+                                                       q_global_imu))
+        angle_squared = innovation[0] ** 2 + innovation[1] ** 2 + innovation[2] ** 2
+        if angle_squared > _ORIENTATION_MIN_ANGLE * _ORIENTATION_MIN_ANGLE:
+            S_angle = orientation[7] + config[C_ORIENTATION_VARIANCE]
+            if not (S_angle > 0.0 and angle_squared / S_angle <= config[C_GATE]):
+                counters[15] += 1
+                has_orientation = False
+    if orientation[14] == 0.0:
+        if not has_orientation:
+            counters[12] += 1
+            counters[8] += 1
+            return _OCCLUDED, math.nan, False
+        orientation[:] = 0.0
+        orientation[0:4] = normalise(q_global_imu)
+        orientation[7] = config[C_ORIENTATION_VARIANCE]
+        orientation[9] = config[C_INITIAL_GYRO_BIAS_VARIANCE]
+        orientation[14] = 1.0
+        scalars[LAST_ORIENTATION_FIX] = t
+    H, offset = output_map(q_global_imu if has_orientation else orientation[0:4].copy(), n,
+                           config)
+    if scalars[INITIALISED_FLAG] == 0.0:
+        initialise(t, z, H, offset, x, P, scalars, config, counters)
+        return _INITIALISED, math.nan, False
+    R = np.eye(3) * config[C_POSITION_NOISE] ** 2
+    y = z - offset - matvec(H, x)
+    S = matmul(matmul(H, P), H.T.copy()) + R
+    nis = math.inf
+    finite_S = np.isfinite(S).all() and np.isfinite(y).all()
+    if finite_S:
+        solved = np.linalg.solve(S, y)
+        value = y[0] * solved[0] + y[1] * solved[1] + y[2] * solved[2]
+        if math.isfinite(value):
+            nis = value
+    scalars[LAST_NIS] = nis
+    y_squared = y[0] * y[0] + y[1] * y[1] + y[2] * y[2]
+    if not (math.isfinite(nis) and math.isfinite(y_squared)):
+        counters[9] += 1
+        return _GATED, nis, False
+    since = math.inf if math.isnan(scalars[LAST_FIX]) else t - scalars[LAST_FIX]
+    kind = _ACCEPTED
+    failed = nis > config[C_GATE] and y_squared > config[C_GATE_MIN] ** 2
+    if failed and since <= config[C_MAX_BRIDGE]:
+        counters[9] += 1
+        return _GATED, nis, False
+    if since >= config[C_REACQUIRE]:
+        kind = _REACQUIRED
+        if nis > config[C_GATE]:
+            # kfusion.kalman.model.reacquisition_inflation
+            position_variance = y_squared / 3.0
+            tau = max(since, 1e-3)
+            velocity_variance = 4.0 * position_variance / (tau * tau)
+            p, v = int(config[C_POSITION]), int(config[C_VELOCITY])
+            for i in range(3):
+                P[p + i, p + i] += position_variance
+                P[v + i, v + i] += velocity_variance
+    prior_x[:] = x
+    prior_P[:, :] = P
+    covariance_update(x, P, z - offset, H, R)
+    if has_orientation:
+        orientation_correct(orientation, q_global_imu, config)
+        scalars[LAST_ORIENTATION_FIX] = t
+    mark_fix(t, scalars, counters)
+    if kind == _REACQUIRED:
+        counters[10] += 1
+    return kind, nis, True
+
+
+@njit(cache=True)
+def filter_events(stream, index, imu_t, accelerometer, gyroscope, imu_finite, mocap_t,
+                  mocap_position, mocap_quaternion, visible, config, size, out_x, out_P,
+                  out_H, out_offset, out_outcome, out_nis, out_dead_reckoned, counters,
+                  out_x_predicted, out_P_predicted, out_transition):
+    """The whole batch loop over a recording's merged events (stream 0 IMU, 1 mocap; index
+    its row). Fills one row of the outputs per mocap row. Returns -1, or the event number
+    the kernel cannot handle (a non-increasing stamp that is not an identical duplicate):
+    the caller then runs the filterpy engine, whose error message names it.
+
+For the smoother (``out_transition`` with m rows; empty (0, n, n) arrays otherwise) it also
+keeps per row the prediction the row's fix was fused into (the filtered state where none
+was) and the product of the transitions since the previous row."""
+    x = np.zeros(size)
+    P = np.eye(size)
+    orientation = np.zeros(15)
+    orientation[0] = 1.0
+    scalars = np.full(SCALAR_COUNT, math.nan)
+    scalars[ACCELEROMETER_EXTRA] = 0.0
+    scalars[GYROSCOPE_EXTRA] = 0.0
+    scalars[INITIALISED_FLAG] = 0.0
+    scalars[LAST_FRAME_FUSED] = 0.0
+    scalars[OUTAGE_SINCE_FIX] = 0.0
+    smoothing = out_transition.shape[0] > 0
+    interval = np.eye(size) if smoothing else np.zeros((0, 0))
+    prior_x = np.zeros(size)
+    prior_P = np.zeros((size, size))
+    for event in range(stream.shape[0]):
+        row = index[event]
+        if stream[event] == 0:
+            stamp = imu_t[row]
+            if not math.isfinite(stamp):
+                return event
+            if not imu_finite[row]:
+                counters[1] += 1
+                continue
+            if not math.isnan(scalars[IMU_STAMP]) and stamp <= scalars[IMU_STAMP]:
+                f, _ = limit(accelerometer[row], config[C_ACC_RANGE])
+                omega, _ = limit(gyroscope[row], config[C_GYRO_RANGE])
+                if (stamp == scalars[IMU_STAMP]
+                        and (f == scalars[ACCELEROMETER:ACCELEROMETER + 3]).all()
+                        and (omega == scalars[GYROSCOPE:GYROSCOPE + 3]).all()):
+                    counters[2] += 1
+                    continue
+                return event
+            predict_step(stamp, accelerometer[row], gyroscope[row], x, P, orientation,
+                         scalars, config, counters, interval)
+            continue
+        t = mocap_t[row]
+        if not visible[row] and not math.isnan(scalars[TIME]) and t < scalars[TIME]:
+            return event
+        kind, nis, fused = update_step(t, visible[row], mocap_position[row],
+                                       mocap_quaternion[row], True, x, P, orientation,
+                                       scalars, config, counters, interval, prior_x,
+                                       prior_P)
+        out_outcome[row] = kind
+        out_nis[row] = nis
+        out_dead_reckoned[row] = t <= dead_reckoning_until(scalars, config)
+        if scalars[INITIALISED_FLAG] != 0.0:
+            out_x[row] = x
+            out_P[row] = P
+            H, offset = output_map(orientation[0:4].copy(), size, config)
+            out_H[row] = H
+            out_offset[row] = offset
+            if smoothing:
+                out_x_predicted[row] = prior_x if fused else x
+                out_P_predicted[row] = prior_P if fused else P
+                out_transition[row] = interval
+        if smoothing:
+            interval[:, :] = np.eye(size)
+    return -1
+
+
+
+@njit(cache=True)
+def point_rows(output_matrix, x, offset, P):
+    """Rigid-body point ``H x + c`` (m, 3) and its variance per axis ``diag(H P H^T)`` (m, 3)
+    from per-row output maps (m, 3, n), states (m, n), offsets (m, 3) and covariances
+    (m, n, n) (:func:`kfusion.kalman.batch.point_estimates`); NaN rows stay NaN."""
+    rows, n = x.shape
+    position = np.empty((rows, 3))
+    variance = np.empty((rows, 3))
+    for row in range(rows):
+        for i in range(3):
+            total = 0.0
+            for j in range(n):
+                total += output_matrix[row, i, j] * x[row, j]
+            position[row, i] = total + offset[row, i]
+            total = 0.0
+            for j in range(n):
+                inner = 0.0
+                for k in range(n):
+                    inner += P[row, j, k] * output_matrix[row, i, k]
+                total += output_matrix[row, i, j] * inner
+            variance[row, i] = total
+    return position, variance
+
+
+@njit(cache=True)
+def extrapolate(t, x, P, orientation, scalars, config):
+    """State, covariance and ``q_global_imu`` at t >= the state's time holding the last sample,
+    without changing the state (:meth:`KalmanFusion._extrapolate`): the orientation propagated
+    at the held rate, then ``x' = F x + B u``, ``P' = F P F^T + Q`` (symmetrised) with
+    ``u = [f; f; g]`` and the held sample's extra variance."""
+    dt = t - scalars[TIME]
+    if (dt <= 0.0 or math.isnan(scalars[ACCELEROMETER]) or orientation[14] == 0.0
+            or scalars[INITIALISED_FLAG] == 0.0):
+        return x.copy(), P.copy(), orientation[0:4].copy()
+    n = x.shape[0]
+    scratch = orientation.copy()
+    f = scalars[ACCELEROMETER:ACCELEROMETER + 3].copy()
+    omega = scalars[GYROSCOPE:GYROSCOPE + 3].copy()
+    R0 = rotation_matrix(scratch[0:4])
+    angle_variance = scratch[7]
+    orientation_propagate(scratch, omega, omega, dt, scalars[GYROSCOPE_EXTRA] * dt * dt, config)
+    R1 = rotation_matrix(scratch[0:4])
+    bias_variance = config[C_TILT_INFLATION] * (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]) * max(
+        scratch[7] - angle_variance, 0.0)
+    u = np.empty(9)
+    u[0:3] = f
+    u[3:6] = f
+    u[6:9] = config[C_GRAVITY:C_GRAVITY + 3]
+    Q = process_noise(dt, n, scalars[ACCELEROMETER_EXTRA], bias_variance, config)
+    F, B = interval_matrices(R0, R1, dt, n, config)
+    x_next = matvec(F, x) + matvec(B, u)
+    P_next = matmul(matmul(F, P), F.T.copy()) + Q
+    return x_next, 0.5 * (P_next + P_next.T), scratch[0:4].copy()
+
+
+@njit(cache=True)
+def rts_backward(x_filtered, P_filtered, x_predicted, P_predicted, transitions):
+    """RTS backward pass over rows 0..m-1 (:func:`kfusion.kalman.smoother.rts_backward`)::
+
+        C_k   = P_k Phi_{k+1}^T P_{k+1|k}^-1    (solved: C^T = P_{k+1|k}^-1 Phi P_k)
+        x_k^s = x_k + C_k (x_{k+1}^s - x_{k+1|k})
+        P_k^s = P_k + C_k (P_{k+1}^s - P_{k+1|k}) C_k^T,  symmetrised
+    Shapes (m, n) and (m, n, n); returns the smoothed (x, P)."""
+    x_smoothed = x_filtered.copy()
+    P_smoothed = P_filtered.copy()
+    for k in range(x_filtered.shape[0] - 2, -1, -1):
+        C = np.linalg.solve(P_predicted[k + 1], matmul(transitions[k + 1], P_filtered[k])).T
+        C = C.copy()
+        x_smoothed[k] = x_filtered[k] + matvec(C, x_smoothed[k + 1] - x_predicted[k + 1])
+        P = P_filtered[k] + matmul(matmul(C, P_smoothed[k + 1] - P_predicted[k + 1]),
+                                   C.T.copy())
+        P_smoothed[k] = 0.5 * (P + P.T)
+    return x_smoothed, P_smoothed
+
+
+# ---------------------------------------------------------------------------------------------
+# The batch driver's side: arrays in, per-row arrays out
+# ---------------------------------------------------------------------------------------------
+
+
+class KernelRun:
+    """What :func:`filter_events` produced over a recording, one row per mocap row (the arrays
+    of :class:`kfusion.kalman.batch.FilterRun`), or ``failed_event`` >= 0."""
+
+    def __init__(self, x: NDArray[np.float64], P: NDArray[np.float64],
+                 output_matrix: NDArray[np.float64], output_offset: NDArray[np.float64],
+                 outcome: NDArray[np.str_], nis: NDArray[np.float64],
+                 dead_reckoned: NDArray[np.bool_], counters: dict[str, int],
+                 failed_event: int) -> None:
+        self.x = x
+        self.P = P
+        self.output_matrix = output_matrix
+        self.output_offset = output_offset
+        self.outcome = outcome
+        self.nis = nis
+        self.dead_reckoned = dead_reckoned
+        self.counters = counters
+        self.failed_event = failed_event
+        # smoother support (filled by run_kernel(smoothing=True))
+        self.x_predicted = np.zeros((0, x.shape[1]))
+        self.P_predicted = np.zeros((0, x.shape[1], x.shape[1]))
+        self.transitions = np.zeros((0, x.shape[1], x.shape[1]))
+
+
+def _kernel_array(values: NDArray[np.generic], dtype: type) -> NDArray[np.generic]:
+    """C-contiguous and writeable (a read-only array is another numba type: one more
+    compilation)."""
+    return np.require(values, dtype=dtype, requirements=["C", "W"])
+
+
+def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
+               gyroscope: NDArray[np.float64], mocap_t: NDArray[np.float64],
+               mocap_position: NDArray[np.float64], mocap_quaternion: NDArray[np.float64],
+               visible: NDArray[np.bool_], events: list[tuple[float, int, int]],
+               config: NDArray[np.float64], size: int, smoothing: bool = False) -> KernelRun:
+    """Run :func:`filter_events` over merged ``events`` (``(t, stream, row)``,
+    :func:`kfusion.kalman.events.merge_events`). Shapes: IMU (n,), (n, 3), (n, 3); mocap (m,),
+    (m, 3), (m, 4), (m,); ``config`` from :func:`pack_config`; n states ``size``."""
+    rows = len(mocap_t)
+    order = np.array([(stream, row) for _, stream, row in events], dtype=np.int64
+                     ).reshape(-1, 2)
+    acceleration_rows = _kernel_array(accelerometer, float)
+    rate_rows = _kernel_array(gyroscope, float)
+    finite = np.isfinite(accelerometer).all(axis=1) & np.isfinite(gyroscope).all(axis=1)
+    out_x = np.full((rows, size), np.nan)
+    out_P = np.full((rows, size, size), np.nan)
+    out_H = np.zeros((rows, 3, size))
+    out_offset = np.zeros((rows, 3))
+    out_outcome = np.full(rows, -1, dtype=np.int64)
+    out_nis = np.full(rows, np.nan)
+    out_dead_reckoned = np.zeros(rows, dtype=bool)
+    counters = np.zeros(len(COUNTER_INDEX), dtype=np.int64)
+    kept = rows if smoothing else 0
+    x_predicted = np.full((kept, size), np.nan)
+    P_predicted = np.full((kept, size, size), np.nan)
+    transitions = np.full((kept, size, size), np.nan)
+    failed = filter_events(
+        _kernel_array(order[:, 0], np.int64), _kernel_array(order[:, 1], np.int64),
+        _kernel_array(imu_t, float), acceleration_rows, rate_rows, finite,
+        _kernel_array(mocap_t, float), _kernel_array(mocap_position, float),
+        _kernel_array(mocap_quaternion, float), _kernel_array(visible, bool), config, size,
+        out_x, out_P, out_H, out_offset, out_outcome, out_nis, out_dead_reckoned, counters,
+        x_predicted, P_predicted, transitions)
+    names = np.array(OUTCOME_NAMES + ("",), dtype=object)
+    run = KernelRun(out_x, out_P, out_H, out_offset, names[out_outcome].astype(str), out_nis,
+                    out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(), strict=True)),
+                    int(failed))
+    run.x_predicted, run.P_predicted, run.transitions = x_predicted, P_predicted, transitions
+    return run

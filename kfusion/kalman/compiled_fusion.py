@@ -1,0 +1,218 @@
+""":class:`CompiledFusion`: the streaming filter with the interface of
+:class:`kfusion.kalman.KalmanFusion`, backed by the compiled step functions of
+:mod:`kfusion.kalman.compiled` (``predict_step``, ``update_step``, ``extrapolate``).
+
+Inputs are validated here exactly as :class:`KalmanFusion` validates them (same checks, same
+messages, same outcomes), so no NaN reaches a kernel; the state lives in flat arrays that the
+kernels update in place. Kept apart from the kernels' module so that editing this class does not
+invalidate numba's on-disk cache of the kernels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from kfusion import streamhealth
+from kfusion.conventions import LOST
+from kfusion.kalman import compiled, model
+from kfusion.kalman.filter import (
+    DUPLICATE,
+    PREDICTED,
+    REJECTED,
+    FilterEstimate,
+    KalmanFusion,
+    UpdateOutcome,
+    checked_frame,
+    checked_sample,
+)
+from kfusion.kalman.parameters import KalmanParameters
+
+
+@dataclass(frozen=True)
+class CompiledSnapshot:
+    """Everything :meth:`CompiledFusion.restore` needs to continue a run bit-exactly."""
+
+    configuration: tuple[float, ...]
+    x: NDArray[np.float64]
+    P: NDArray[np.float64]
+    orientation: NDArray[np.float64]
+    scalars: NDArray[np.float64]
+    counters: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+
+class CompiledFusion:
+    """Streaming IMU + mocap position filter on the compiled engine; the same arguments,
+    methods and properties as :class:`kfusion.kalman.KalmanFusion` (whose docstring explains
+    the model). Snapshots are :class:`CompiledSnapshot` (restore them into a CompiledFusion)."""
+
+    def __init__(self, imu_to_body: ArrayLike, gravity: ArrayLike, params: KalmanParameters,
+                 lever_arm: ArrayLike | None = None) -> None:
+        # the reference validates the arguments and builds the configuration (one place)
+        reference = KalmanFusion(imu_to_body, gravity, params, lever_arm=lever_arm)
+        self.params = params
+        self.size = reference.size
+        self._config = reference.kernel_config()
+        self._configuration = tuple(self._config.tolist())
+        self._x = np.zeros(self.size)
+        self._P = np.eye(self.size)
+        self._orientation = compiled.initial_orientation()
+        self._scalars = compiled.initial_scalars()
+        self._counters = np.zeros(len(compiled.COUNTER_INDEX), dtype=np.int64)
+        self._no_interval = np.zeros((0, 0))
+        self._prior_x = np.zeros(self.size)
+        self._prior_P = np.zeros((self.size, self.size))
+        self._no_quaternion = np.zeros(4)
+        # read-only view for the Tracker's finiteness check (the kernels write in place)
+        self._kf = SimpleNamespace(x=self._x, P=self._P)
+
+    # ------------------------------------------------------------------ public state
+
+    @property
+    def x(self) -> NDArray[np.float64]:
+        """(n,) copy of the state."""
+        return self._x.copy()
+
+    @property
+    def P(self) -> NDArray[np.float64]:  # noqa: N802 (the standard Kalman symbol)
+        """(n, n) copy of the state covariance."""
+        return self._P.copy()
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Copy of the event counts (keys :data:`kfusion.kalman.filter.COUNTER_NAMES`)."""
+        return dict(zip(compiled.COUNTER_INDEX, self._counters.tolist(), strict=True))
+
+    @property
+    def time(self) -> float | None:
+        """Time of the state, s (None before the first event)."""
+        return _optional(self._scalars[compiled.TIME])
+
+    @property
+    def initialised(self) -> bool:
+        """True once a fix has initialised the position."""
+        return bool(self._scalars[compiled.INITIALISED_FLAG] != 0.0)
+
+    @property
+    def estimates_lever_arm(self) -> bool:
+        """True when the lever arm is part of the state (12 states)."""
+        return self.size == model.LEVER_SIZE
+
+    def dead_reckoning_until(self) -> float:
+        """Time (s) up to which the state is IMU-propagated since the last fix."""
+        return float(compiled.dead_reckoning_until(self._scalars, self._config))
+
+    # ------------------------------------------------------------------ events
+
+    def predict(self, t: float, accelerometer: ArrayLike, gyroscope: ArrayLike) -> str:
+        """:meth:`KalmanFusion.predict` (same checks, outcomes and errors)."""
+        t, f, omega, finite = checked_sample(t, accelerometer, gyroscope)
+        if not finite:
+            self._counters[compiled.COUNTER_INDEX["imu_rejected"]] += 1
+            return REJECTED
+        stamp = self._scalars[compiled.IMU_STAMP]
+        if not math.isnan(stamp) and t <= stamp:
+            held = self._scalars
+            if (t == stamp and np.array_equal(
+                    np.clip(f, -self.params.accelerometer_range, self.params.accelerometer_range),
+                    held[compiled.ACCELEROMETER:compiled.ACCELEROMETER + 3])
+                    and np.array_equal(np.clip(omega, -self.params.gyroscope_range,
+                                               self.params.gyroscope_range),
+                                       held[compiled.GYROSCOPE:compiled.GYROSCOPE + 3])):
+                self._counters[compiled.COUNTER_INDEX["imu_duplicates"]] += 1
+                return DUPLICATE
+            raise ValueError(f"predict: timestamp {t!r} s is not after the previous IMU sample "
+                             f"({stamp!r} s); expected strictly increasing times")
+        rejected = self._counters[compiled.COUNTER_INDEX["imu_rejected"]]
+        compiled.predict_step(t, f.copy(), omega.copy(), self._x, self._P, self._orientation,
+                              self._scalars, self._config, self._counters, self._no_interval)
+        if self._counters[compiled.COUNTER_INDEX["imu_rejected"]] != rejected:
+            return REJECTED
+        return PREDICTED
+
+    def update(self, t: float, position: ArrayLike | None,
+               quaternion: ArrayLike | None = None) -> UpdateOutcome:
+        """:meth:`KalmanFusion.update` (same checks, outcomes and errors)."""
+        t, z, q_global_body = checked_frame(t, self.time, position, quaternion)
+        kind, nis, _ = compiled.update_step(
+            t, z is not None, np.zeros(3) if z is None else z.copy(),
+            self._no_quaternion if q_global_body is None else q_global_body.copy(),
+            q_global_body is not None, self._x, self._P, self._orientation, self._scalars,
+            self._config, self._counters, self._no_interval, self._prior_x, self._prior_P)
+        return UpdateOutcome(t, compiled.OUTCOME_NAMES[kind], float(nis))
+
+    def estimate(self, t: float | None = None) -> FilterEstimate:
+        """:meth:`KalmanFusion.estimate`: the estimate at t (s; default: the state's time)."""
+        time = self.time
+        if time is None:
+            raise ValueError("estimate: no event yet; feed predict() or update() first")
+        t = time if t is None else float(t)
+        if not t >= time:
+            raise ValueError(f"estimate: time {t!r} s is before the state's time "
+                             f"({time!r} s); expected t >= {time!r}")
+        x, P, quaternion = compiled.extrapolate(t, self._x, self._P, self._orientation,
+                                                self._scalars, self._config)
+        last_nis = float(self._scalars[compiled.LAST_NIS])
+        if not self.initialised:
+            nan3 = np.full(3, np.nan)
+            return FilterEstimate(t, nan3, np.full((3, 3), np.nan), nan3, nan3, nan3, nan3,
+                                  quaternion, np.full(P.shape, np.nan), LOST, math.inf,
+                                  last_nis)
+        H, offset = compiled.output_map(quaternion, self.size, self._config)
+        position = model.output_point(H, x, offset)
+        position_covariance = model.output_covariance(H, P)
+        last_fix = self._scalars[compiled.LAST_FIX]
+        since = math.inf if math.isnan(last_fix) else t - float(last_fix)
+        status = streamhealth.tracking_status(
+            since, bool(self._scalars[compiled.LAST_FRAME_FUSED] != 0.0),
+            fix_timeout_s=streamhealth.FIX_TIMEOUT_S, max_bridge_s=self.params.max_bridge_s,
+            beyond_dead_reckoning=t > self.dead_reckoning_until())
+        return FilterEstimate(
+            t, position, position_covariance, np.sqrt(np.diag(position_covariance)),
+            x[model.VELOCITY].copy(), x[model.BIAS].copy(), self._lever_in_use(x),
+            quaternion, P, status, since, last_nis)
+
+    def output_map(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(H (3, n), c (3,)): the rigid-body point is ``H x + c`` at the current orientation."""
+        H, offset = compiled.output_map(self._orientation[0:4].copy(), self.size, self._config)
+        return H, offset
+
+    def _lever_in_use(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        if self.estimates_lever_arm:
+            return np.array(x[model.LEVER], dtype=float)
+        if self._config[compiled.C_LEVER_GIVEN] != 0.0:
+            return self._config[compiled.C_LEVER:compiled.C_LEVER + 3].copy()
+        return np.zeros(3)
+
+    # ------------------------------------------------------------------ save / restore
+
+    def snapshot(self) -> CompiledSnapshot:
+        """A copy of the whole state; :meth:`restore` continues from it bit-exactly."""
+        return CompiledSnapshot(self._configuration, self._x.copy(), self._P.copy(),
+                                self._orientation.copy(), self._scalars.copy(),
+                                self._counters.copy())
+
+    def restore(self, snapshot: CompiledSnapshot) -> None:
+        """Continue from ``snapshot`` (taken from a filter with the same configuration)."""
+        if not isinstance(snapshot, CompiledSnapshot):
+            raise ValueError(f"restore: expected a CompiledSnapshot, got "
+                             f"{type(snapshot).__name__}")
+        if snapshot.configuration != self._configuration:
+            raise ValueError("restore: the snapshot was taken from a filter with other "
+                             "parameters, imu_to_body, gravity or lever_arm; expected the same")
+        self._x[:] = snapshot.x
+        self._P[:, :] = snapshot.P
+        self._orientation[:] = snapshot.orientation
+        self._scalars[:] = snapshot.scalars
+        self._counters[:] = snapshot.counters
+
+
+def _optional(value: Any) -> float | None:
+    """NaN (the kernels' None) -> None."""
+    value = float(value)
+    return None if math.isnan(value) else value

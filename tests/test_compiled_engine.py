@@ -1,0 +1,263 @@
+"""The compiled engine (:mod:`kfusion.kalman.compiled`) against the filterpy engine
+(:class:`kfusion.kalman.KalmanFusion`): the same rows within 1e-9 m, the same outcomes, statuses
+and counters, on simulated recordings that exercise every branch (gaps, a bad fix, re-acquisition,
+lever-arm states, resets, saturation, rejected samples, latency and a clock offset) and on the
+bundled BROAD excerpt. Plus one predict and one update step checked against hand-derived values.
+
+The kernels compile once per process (numba ``cache=True`` keeps the machine code on disk)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kfusion.datasets import broad_excerpt
+from kfusion.kalman import run_filter
+from kfusion.recording import ImuSamples, MocapFrames, Recording, read_recording
+from kfusion.simulate import OcclusionSpec, simulate
+
+compiled = pytest.importorskip("kfusion.kalman.compiled")
+
+TOLERANCE_M = 1e-9
+
+
+def simulated(**changes: object) -> Recording:
+    """A 6 s simulated arm lift with 0.15-0.6 s gaps."""
+    simulation = simulate("arm_lift", seed=5, duration=6.0,
+                          occlusions=OcclusionSpec(gap_range=(0.15, 0.6), spacing=1.0))
+    recording = simulation.recording
+    return dataclasses.replace(recording, info=dataclasses.replace(recording.info, **changes))
+
+
+def with_mocap(recording: Recording, position: np.ndarray, quaternion: np.ndarray | None = None,
+               t: np.ndarray | None = None) -> Recording:
+    mocap = recording.mocap
+    return dataclasses.replace(recording, mocap=MocapFrames(
+        t=mocap.t if t is None else t, position=position,
+        quaternion=mocap.quaternion if quaternion is None else quaternion))
+
+
+def with_imu(recording: Recording, accelerometer: np.ndarray) -> Recording:
+    imu = recording.imu
+    return dataclasses.replace(recording, imu=ImuSamples(t=imu.t, accelerometer=accelerometer,
+                                                         gyroscope=imu.gyroscope))
+
+
+def bad_fix() -> Recording:
+    """A 5 cm jump in one visible frame (gated), and a long gap ending far from the prediction
+    (re-acquired after max_bridge_s)."""
+    recording = simulated()
+    position = recording.mocap.position.copy()
+    visible = np.flatnonzero(np.isfinite(position[:, 0]))
+    position[visible[100]] += 0.05
+    position[visible[300]:visible[300] + 150] = np.nan  # 1.5 s gap: lost, then re-acquired
+    position[visible[300] + 150:] += 0.03
+    return with_mocap(recording, position)
+
+
+def corrupt_imu() -> Recording:
+    """NaN and implausible IMU samples (rejected), and saturation at a low range."""
+    recording = simulated()
+    accelerometer = recording.imu.accelerometer.copy()
+    accelerometer[50] = np.nan
+    accelerometer[400] = 1e7
+    return with_imu(recording, accelerometer)
+
+
+def reset_recording() -> Recording:
+    """A mocap frame 1e120 s after the rest: the no-IMU propagation overflows (a reset), and
+    the next frame initialises again."""
+    recording = simulated()
+    mocap = recording.mocap
+    keep = len(mocap.t) // 2
+    t = np.concatenate([mocap.t[:keep], [1e120, 2e120]])
+    seen = np.flatnonzero(mocap.visible)[:2]  # two visible frames for the late rows
+    position = np.concatenate([mocap.position[:keep], mocap.position[seen]])
+    quaternion = np.concatenate([mocap.quaternion[:keep], mocap.quaternion[seen]])
+    return with_mocap(recording, position, quaternion, t)
+
+
+CASES = {
+    "gaps_lever_arm_states": (simulated, {}),
+    "given_lever_arm": (lambda: simulated(lever_arm=(0.01, -0.02, 0.015)), {}),
+    "no_lever_arm": (simulated, {"lever_arm_std": 0.0}),
+    "gated_and_reacquired": (bad_fix, {}),
+    "rejected_and_saturated": (corrupt_imu, {"accelerometer_range": 12.0,
+                                             "gyroscope_range": 0.05}),
+    "reset": (reset_recording, {}),
+    "latency_and_clock": (lambda: simulated(imu_time_offset=0.002, imu_clock_drift_ppm=40.0),
+                          {"imu_latency_s": 0.007}),
+    "scale_errors_no_gating": (simulated, {"accelerometer_scale_error": 0.01,
+                                           "gyroscope_scale_error": 0.01,
+                                           "gate_probability": None}),
+    "broad_excerpt": (lambda: read_recording(broad_excerpt()), {}),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_compiled_equals_filterpy(case: str) -> None:
+    build, overrides = CASES[case]
+    recording = build()
+    fast = run_filter(recording, monitor=None, engine="compiled", **overrides)
+    reference = run_filter(recording, monitor=None, engine="filterpy", **overrides)
+    assert fast.outcome.tolist() == reference.outcome.tolist()
+    assert fast.result.status.tolist() == reference.result.status.tolist()
+    assert fast.counters == reference.counters
+    np.testing.assert_allclose(fast.result.position, reference.result.position, rtol=0,
+                               atol=TOLERANCE_M)
+    np.testing.assert_allclose(fast.result.std, reference.result.std, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(fast.nis, reference.nis, rtol=1e-9)
+
+
+def test_cases_exercise_their_branches() -> None:
+    """The recordings above do reach the branches they are named for (else the equality
+    would prove nothing)."""
+    counters = {case: run_filter(build(), monitor=None, engine="compiled", **overrides).counters
+                for case, (build, overrides) in CASES.items()}
+    assert counters["gated_and_reacquired"]["gated"] >= 1
+    assert counters["gated_and_reacquired"]["reacquired"] >= 1
+    assert counters["rejected_and_saturated"]["imu_rejected"] == 2
+    assert counters["rejected_and_saturated"]["accelerometer_saturated"] > 0
+    assert counters["rejected_and_saturated"]["gyroscope_saturated"] > 0
+    assert counters["reset"]["resets"] >= 1
+    assert counters["reset"]["initialised"] >= 2  # re-initialised after each reset
+    assert counters["gaps_lever_arm_states"]["occluded"] > 0
+
+
+def test_unknown_engine_is_refused() -> None:
+    with pytest.raises(ValueError, match=r"engine: expected one of \['compiled', 'filterpy'\]"):
+        run_filter(simulated(), monitor=None, engine="fast")
+
+
+def test_one_predict_step_by_hand() -> None:
+    """R0 = R1 = I, f0 = f1 = f, b = 0, g: ``p' = p + v dt + dt^2/2 (f + g)``,
+    ``v' = v + dt (f + g)``; ``P' = F P F^T + Q`` with P = I gives
+    ``P'_pp = 1 + dt^2 + dt^4/4 + Q_pp`` (the bias column is -dt^2/2 I)."""
+    config = np.zeros(compiled.CONFIG_SIZE)
+    config[compiled.C_POSITION], config[compiled.C_VELOCITY], config[compiled.C_BIAS] = 0, 3, 6
+    config[compiled.C_ACC_DENSITY] = 0.1
+    dt = 0.01
+    F, B = compiled.interval_matrices(np.eye(3), np.eye(3), dt, 9, config)
+    Q = compiled.process_noise(dt, 9, 0.0, 0.0, config)
+    x = np.array([1.0, 2.0, 3.0, 0.5, -0.5, 0.0, 0.0, 0.0, 0.0])
+    P = np.eye(9)
+    f = np.array([0.0, 0.0, 9.81])
+    g = np.array([0.0, 0.0, -9.81 + 2.0])
+    compiled.covariance_predict(x, P, F, B, np.concatenate([f, f, g]), Q)
+    acceleration = f + g
+    np.testing.assert_allclose(x[0:3], [1.0 + 0.5 * dt, 2.0 - 0.5 * dt,
+                                        3.0 + 0.5 * dt * dt * acceleration[2]], atol=1e-15)
+    np.testing.assert_allclose(x[3:6], [0.5, -0.5, dt * acceleration[2]], atol=1e-15)
+    assert P[0, 0] == pytest.approx(1.0 + dt ** 2 + dt ** 4 / 4 + 0.01 * dt ** 3, rel=1e-14)
+    assert P[0, 3] == pytest.approx(dt + dt ** 3 / 2 + 0.01 * dt ** 2, rel=1e-14)
+    assert P[3, 3] == pytest.approx(1.0 + dt ** 2 + 0.01 * dt, rel=1e-14)
+
+
+def test_one_update_step_by_hand() -> None:
+    """P = s I, H = [I 0 0], R = r I: ``K = s / (s + r)`` on the position,
+    ``p' = p + K (z - p)``, ``P'_pp = s r / (s + r)``, velocity untouched."""
+    s, r = 4e-4, 1e-4
+    x = np.zeros(9)
+    P = np.eye(9) * s
+    H = np.zeros((3, 9))
+    H[:, 0:3] = np.eye(3)
+    z = np.array([0.01, -0.02, 0.005])
+    compiled.covariance_update(x, P, z, H, np.eye(3) * r)
+    gain = s / (s + r)
+    np.testing.assert_allclose(x[0:3], gain * z, rtol=1e-14)
+    np.testing.assert_allclose(x[3:9], 0.0, atol=0)
+    np.testing.assert_allclose(np.diag(P)[0:3], s * r / (s + r), rtol=1e-13)
+    np.testing.assert_allclose(np.diag(P)[3:9], s, rtol=1e-14)
+
+
+@pytest.mark.parametrize("case", ["gated_and_reacquired", "reset", "latency_and_clock",
+                                  "given_lever_arm", "broad_excerpt"])
+def test_compiled_smoother_equals_filterpy(case: str) -> None:
+    """Forward kernel with the smoother's per-row predictions and transitions, and the njit
+    RTS backward pass, against KalmanFusion and the numpy backward pass."""
+    from kfusion.kalman import run_smoother
+
+    build, overrides = CASES[case]
+    recording = build()
+    fast = run_smoother(recording, monitor=None, engine="compiled", **overrides)
+    reference = run_smoother(recording, monitor=None, engine="filterpy", **overrides)
+    assert fast.outcome.tolist() == reference.outcome.tolist()
+    assert fast.result.status.tolist() == reference.result.status.tolist()
+    np.testing.assert_allclose(fast.result.position, reference.result.position, rtol=0,
+                               atol=TOLERANCE_M)
+    np.testing.assert_allclose(fast.result.std, reference.result.std, rtol=1e-7, atol=1e-12)
+
+
+def tracker_rows(recording: Recording, engine: str, **overrides: float
+                 ) -> tuple[np.ndarray, list[str]]:
+    """Feed a Tracker (``engine``) every event in the fusion order and read it at each mocap
+    row: positions (m, 3) (NaN where it gives none) and statuses."""
+    from kfusion.kalman import KalmanParameters
+    from kfusion.kalman.events import merge_events
+    from kfusion.tracker import Tracker
+
+    info = recording.info
+    params = KalmanParameters.from_profiles(info.imu, None, **overrides)
+    tracker = Tracker(info.imu_to_body, info.gravity, params=params, lever_arm=info.lever_arm,
+                      engine=engine)
+    imu, mocap = recording.imu, recording.mocap
+    positions = np.full((len(mocap.t), 3), np.nan)
+    statuses = []
+    for t, stream, row in merge_events(imu.t.tolist(), mocap.t.tolist(),
+                                       params.imu_latency_s):
+        if stream == 0:
+            tracker.push_imu(imu.t[row], imu.accelerometer[row], imu.gyroscope[row])
+            continue
+        visible = bool(mocap.visible[row])
+        tracker.push_mocap(t, mocap.position[row] if visible else None,
+                           mocap.quaternion[row] if visible else None)
+        estimate = tracker.estimate(t)
+        positions[row] = estimate.position
+        statuses.append(estimate.status)
+    return positions, statuses
+
+
+@pytest.mark.parametrize("case", ["gated_and_reacquired", "given_lever_arm", "broad_excerpt"])
+def test_tracker_compiled_equals_filterpy(case: str) -> None:
+    """CompiledFusion step by step (and as the consistency monitor's shadow filter) inside the
+    Tracker gives the rows of KalmanFusion."""
+    build, overrides = CASES[case]
+    recording = build()
+    fast_position, fast_status = tracker_rows(recording, "compiled", **overrides)
+    position, status = tracker_rows(recording, "filterpy", **overrides)
+    assert fast_status == status
+    np.testing.assert_allclose(fast_position, position, rtol=0, atol=TOLERANCE_M)
+
+
+@pytest.mark.parametrize("case", ["gated_and_reacquired", "broad_excerpt"])
+def test_compiled_with_the_monitor_equals_filterpy(case: str) -> None:
+    """With the consistency monitor (the default of ``kfusion track``) the compiled engine runs
+    step by step (CompiledFusion, also as the monitor's shadow filter): the same rows."""
+    build, overrides = CASES[case]
+    recording = build()
+    fast = run_filter(recording, engine="compiled", **overrides)
+    reference = run_filter(recording, engine="filterpy", **overrides)
+    assert fast.outcome.tolist() == reference.outcome.tolist()
+    assert fast.result.status.tolist() == reference.result.status.tolist()
+    np.testing.assert_allclose(fast.result.position, reference.result.position, rtol=0,
+                               atol=TOLERANCE_M)
+    np.testing.assert_allclose(fast.result.std, reference.result.std, rtol=1e-7, atol=1e-12)
+
+
+def test_track_command_engines_agree(tmp_path: Path) -> None:
+    """``kfusion track --engine compiled`` and ``--engine filterpy`` write the same rows."""
+    from kfusion.cli import main
+    from kfusion.track_file import read_track
+
+    folder = broad_excerpt()
+    outputs = {}
+    for engine in ("compiled", "filterpy"):
+        out = tmp_path / f"{engine}.csv"
+        assert main(["track", str(folder), "--engine", engine, "--out", str(out)]) == 0
+        outputs[engine] = read_track(out)
+    np.testing.assert_allclose(outputs["compiled"].position, outputs["filterpy"].position,
+                               rtol=0, atol=TOLERANCE_M)
+    assert outputs["compiled"].status.tolist() == outputs["filterpy"].status.tolist()
