@@ -280,7 +280,7 @@ def test_push_markers_equals_kfusion_track_with_markers_bit_for_bit(tmp_path, ca
     folder = write_simulation(simulation, tmp_path / "recording")
     out = tmp_path / "track.csv"
     assert main(["track", str(folder), "--out", str(out), "--force"]) == 0
-    assert "measurement: markers)" in capsys.readouterr().out
+    assert "measurement: markers, engine: filterpy)" in capsys.readouterr().out
     recording = read_recording(folder)
     batch = run_filter(recording, measurement="markers")
     from kfusion.track_file import read_track

@@ -75,7 +75,9 @@ COUNTER_INDEX: Final = {name: index for index, name in enumerate(
     ("predictions", "imu_rejected", "imu_duplicates", "imu_dropouts", "imu_late",
      "accelerometer_saturated", "gyroscope_saturated", "updates", "occluded", "gated",
      "reacquired", "initialised", "no_orientation", "resets", "imu_outages",
-     "orientation_gated"))}
+     "orientation_gated", "markers_used", "markers_gated"))}
+"""Position of each of :data:`kfusion.kalman.filter.COUNTER_NAMES` in the counters array (the
+kernels index it by these numbers; the marker counts stay 0: no marker-level fusion here)."""
 
 
 def pack_config(params: KalmanParameters, q_body_imu: tuple[float, float, float, float],
