@@ -27,7 +27,7 @@ from kfusion.safety import (
     protective_separation_distance,
 )
 from kfusion.simulate import OcclusionSpec, simulate, write_simulation
-from kfusion.track_file import TrackResult, read_track
+from kfusion.track_file import TrackResult, read_track, write_track_csv
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 
@@ -477,13 +477,53 @@ def test_separation_is_the_existing_iso_composition():
 # ------------------------------------------------------------------------------------------
 
 
-def test_readme_several_bodies_example_runs(tmp_path, monkeypatch):
+def test_readme_several_bodies_examples_run(tmp_path, monkeypatch, capsys):
     text = README.read_text(encoding="utf-8")
-    section = text.split("## Several bodies", 1)[1].split("\n## ", 1)[0]
+    section = text.split("\n## Several bodies\n", 1)[1].split("\n## ", 1)[0]
     blocks = re.findall(r"```python\n(.*?)```", section, flags=re.DOTALL)
-    assert len(blocks) == 1
+    assert len(blocks) == 2
     monkeypatch.chdir(tmp_path)
+    (tmp_path / "tracks").mkdir()
+    for name, track in two_tracks().items():  # what `kfusion track bodies/ --out tracks/` writes
+        write_track_csv(track, tmp_path / "tracks" / f"{name}.csv")
     namespace: dict = {}
-    exec(compile(blocks[0], "README.md (Several bodies)", "exec"), namespace)
-    assert namespace["result"].known and namespace["result"].body == "left"
-    assert not namespace["lost"].known
+    for index, block in enumerate(blocks):
+        exec(compile(block, f"README.md (Several bodies, example {index + 1})", "exec"),
+             namespace)
+    # the first example prints what its comments show (0.200 m: see the hand derivation in
+    # test_readme_margin_by_hand); the robot is outside S_p, so nothing else is printed
+    comments = [line.split("# ", 1)[1] for line in blocks[0].splitlines()
+                if line.startswith("print(") and "# " in line]
+    assert capsys.readouterr().out.splitlines()[:2] == comments
+    assert namespace["result"].known and not namespace["lost"].known
+    assert namespace["margins"].names == ("left", "right")
+    assert (tmp_path / "margins.png").stat().st_size > 0
+
+
+def test_readme_margin_by_hand():
+    # The README's left forearm: robot at (2.5, 1.0, 0.3), body at (0.5, 1.2, 0.3):
+    # |d| = sqrt(2^2 + 0.2^2) = sqrt(4.04). S_p with the ISO 13855 rule: T = 0.1 + 0.3 = 0.4 s,
+    # 2.0 * 0.4 + 0.85 = 1.65 > 0.5 -> S_h + C = 1.6 * 0.4 + 0.85 = 1.49; S_r = 0.1, S_s = 0.2,
+    # Z_r = 0.01, Z_d = 0.003 * sqrt(chi2_3(0.99)) (its largest sigma).
+    z_d = 0.003 * math.sqrt(chi2.ppf(0.99, 3))
+    expected = math.sqrt(4.04) - (1.49 + 0.1 + 0.2 + 0.01 + z_d)
+    left = BodyEstimate(t=2.0, position=np.array([0.5, 1.2, 0.3]),
+                        std=np.array([0.002, 0.002, 0.003]), status=BRIDGED)
+    result = binding_body([2.5, 1.0, 0.3], {"left": left},
+                          robot_speed=1.0, reaction_time=0.1, stopping_time=0.3,
+                          stopping_distance=0.2, robot_position_uncertainty=0.01)
+    assert result.margin == pytest.approx(expected, abs=1e-12)
+    assert f"{expected:.3f}" == "0.200"
+
+def test_margin_figure_draws_each_binding_body_and_shades_the_unknown_rows():
+    from kfusion.plots import binding_margin_figure
+
+    margins = binding_margins([0.0, 0.0, 0.0], two_tracks(), **ROBOT)
+    figure = binding_margin_figure(margins)
+    ax = figure.axes[0]
+    drawn = {line.get_label(): line.get_ydata() for line in ax.lines}
+    np.testing.assert_array_equal(np.isfinite(drawn["left binds"]), [True, False, False, False])
+    np.testing.assert_array_equal(np.isfinite(drawn["right binds"]), [False, True, True, False])
+    spans = [(patch.get_x(), patch.get_x() + patch.get_width()) for patch in ax.patches]
+    assert spans == [pytest.approx((0.03, 0.04))]  # the last row, where "right" is lost
+    assert "(m)" in ax.get_ylabel()
