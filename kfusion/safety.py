@@ -45,6 +45,12 @@ Unknown is explicit. When the tracker is lost, when no estimate is given, or whe
 has no usable uncertainty (the baseline method has none), the result has ``known=False`` and
 ``value=math.inf`` with a reason. It is never a small number, and because the value is infinite
 even a caller that only compares ``current_distance >= result.value`` gets "not safe".
+
+Several bodies (two forearms): :func:`binding_body` computes each body's margin
+``|robot - body| - S_p`` (m), with S_p as above and that body's bound as Z_d, and returns the
+body with the smallest margin. The result is unknown (``known=False``, ``margin=-math.inf``) as
+soon as any body's S_p is unknown: a lost body is never skipped, since it may be the nearest.
+:func:`binding_margins` applies it row by row to ``kfusion track`` outputs.
 """
 
 from __future__ import annotations

@@ -142,7 +142,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     c3d.add_argument("c3d", metavar="FILE.c3d", help="C3D file")
     c3d.add_argument("--markers", metavar="M1,M2,M3[,...]",
                      help="the cluster's markers, 3 or more (a name matches a POINT:LABELS "
-                     "label, or the part after its last ':'); required without --body")
+                     "label, or the part after its last ':'); required for one body without --body")
     c3d.add_argument("--body", metavar="NAME", action="append",
                      help="one body's markers: the labels NAME:... (all of them, or those of "
                      "--markers); repeat it for several bodies, with --imu NAME=IMU.csv each")
