@@ -527,3 +527,53 @@ def test_margin_figure_draws_each_binding_body_and_shades_the_unknown_rows():
     spans = [(patch.get_x(), patch.get_x() + patch.get_width()) for patch in ax.patches]
     assert spans == [pytest.approx((0.03, 0.04))]  # the last row, where "right" is lost
     assert "(m)" in ax.get_ylabel()
+
+
+# ------------------------------------------------------------------------------------------
+# real data: the bundled BROAD excerpt as two bodies
+# ------------------------------------------------------------------------------------------
+
+SHIFT = np.array([0.25, 0.0, 0.0])
+"""m: the second body is the excerpt's forearm moved 0.25 m along x (same IMU)."""
+
+
+def test_real_excerpt_as_two_bodies_tracks_and_binds_as_derived(tmp_path, capsys):
+    """BROAD trial 21's excerpt as body "near", and a copy moved 0.25 m towards the robot with a
+    1.5 s occlusion (longer than max_bridge_s = 1 s) as body "shifted": the CLI tracks both, and
+    the batch margin's binding body and unknown rows match a direct numpy derivation."""
+    import shutil
+
+    import pandas as pd
+
+    from kfusion.datasets import broad_excerpt
+
+    folder = tmp_path / "bodies"
+    shutil.copytree(broad_excerpt(), folder / "near")
+    shutil.copytree(broad_excerpt(), folder / "shifted")
+    mocap = pd.read_csv(folder / "shifted" / "mocap.csv")
+    mocap[["x", "y", "z"]] += SHIFT
+    gap = (mocap["t"] > mocap["t"].iloc[0] + 10.0) & (mocap["t"] < mocap["t"].iloc[0] + 11.5)
+    mocap.loc[gap, ["x", "y", "z", "qw", "qx", "qy", "qz"]] = np.nan
+    mocap.to_csv(folder / "shifted" / "mocap.csv", index=False, na_rep="")
+    out = tmp_path / "tracks"
+    assert main(["track", str(folder), "--out", str(out)]) == 0
+    assert "2 of 2 bodies tracked" in capsys.readouterr().out
+    tracks = read_body_tracks(out)
+    lost = {name: track.status == LOST for name, track in tracks.items()}
+    assert lost["shifted"].sum() > 0 and not lost["near"].any()
+
+    robot = np.array([2.0, -0.4, 1.9])  # on the +x side: "shifted" is the nearer body
+    margins = binding_margins(robot, tracks, **ROBOT)
+    radius = {name: np.max(track.std, axis=1) * math.sqrt(chi2.ppf(0.99, 3))
+              for name, track in tracks.items()}
+    derived = {name: np.linalg.norm(track.position - robot, axis=1) - BASE - radius[name]
+               for name, track in tracks.items()}
+    unknown = lost["near"] | lost["shifted"]
+    np.testing.assert_array_equal(margins.known, ~unknown)
+    expected = np.where(derived["shifted"] <= derived["near"], "shifted", "near")
+    np.testing.assert_array_equal(margins.body[~unknown], expected[~unknown])
+    np.testing.assert_allclose(margins.margin[~unknown],
+                               np.minimum(derived["near"], derived["shifted"])[~unknown],
+                               atol=1e-12, rtol=0)
+    assert (margins.margin[unknown] == -math.inf).all()
+    assert (margins.body == "shifted").mean() > 0.9
