@@ -387,6 +387,44 @@ def test_bad_arguments_raise_value_error_naming_them():
         binding_body([0.0, 0.0, 0.0], estimates, **{**ROBOT, "robot_speed": -1.0})
 
 
+
+def test_tracker_estimates_of_two_forearms():
+    """Two Tracker instances at rest fed mocap fixes: the margin of each is |robot - p| - S_p of
+    its Estimate; a third never fed fixes is lost, and so are both once the streams stop: the
+    result is unknown."""
+    from kfusion import Tracker
+
+    def tracker_at(position, fixes: bool) -> Tracker:
+        tracker = Tracker(imu_to_body=[1, 0, 0, 0], gravity=[0, -9.81, 0])
+        for i in range(201):  # 1 s at rest: 200 Hz IMU, 100 Hz mocap
+            t = i / 200
+            tracker.push_imu(t, [0.0, 9.81, 0.0], [0.0, 0.0, 0.0])
+            if fixes and i % 2 == 0:
+                tracker.push_mocap(t, position, [1.0, 0.0, 0.0, 0.0])
+        return tracker
+
+    left = tracker_at([0.5, 1.2, 0.3], fixes=True)
+    right = tracker_at([-0.4, 1.1, 0.3], fixes=True)
+    now = 1.01
+    estimates = {"left": left.estimate(now), "right": right.estimate(now)}
+    assert {estimate.status for estimate in estimates.values()} <= {TRACKED, BRIDGED}
+    result = binding_body([2.0, 1.0, 0.3], estimates, now=now, **ROBOT)
+    expected = {name: float(np.linalg.norm(np.array([2.0, 1.0, 0.3]) - estimate.position))
+                - protective_separation_distance(estimate, now=now, **ROBOT).value
+                for name, estimate in estimates.items()}
+    assert result.body == "left" and result.known
+    assert dict(result.margins) == pytest.approx(expected, abs=1e-12)
+    # 0.5 s after both streams stopped nothing is dead-reckoned: both lost, so unknown
+    later = binding_body([2.0, 1.0, 0.3], {name: tracker.estimate(now + 0.5) for name, tracker
+                                           in (("left", left), ("right", right))},
+                         now=now + 0.5, **ROBOT)
+    assert not later.known and later.unknown_bodies == ("left", "right")
+    assert later.margin == -math.inf and not later.permits()
+    estimates["right"] = tracker_at([-0.4, 1.1, 0.3], fixes=False).estimate(now)
+    assert estimates["right"].status == LOST
+    unknown = binding_body([2.0, 1.0, 0.3], estimates, now=now, **ROBOT)
+    assert not unknown.known and unknown.unknown_bodies == ("right",)
+
 body_states = st.tuples(
     st.tuples(*[st.floats(-5, 5, allow_nan=False)] * 3),
     st.floats(0.0, 1.0, allow_nan=False),
