@@ -165,6 +165,9 @@ def test_every_body_needs_its_own_imu(take, tmp_path, capsys):
     err = error_of(capsys, str(path), "--imu", f"Left={imus['Left']}", "--imu",
                    str(imus["Right"]), "--out", out)
     assert "expected either one IMU file (one body) or BODY=IMU.csv for every body" in err
+    err = error_of(capsys, str(path), "--imu", f"Left={imus['Left']}", "--imu",
+                   f"Right={imus['Left']}", "--out", out)
+    assert f"--imu Left= and --imu Right= name the same file {imus['Left']}" in err
     assert not Path(out).exists()
 
 

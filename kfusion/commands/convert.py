@@ -358,6 +358,13 @@ def plan_c3d_bodies(args: argparse.Namespace) -> C3dBodies | None:
         if body not in per_body:
             raise ValueError(f"{COMMAND_LINE}: body {body!r} has no IMU file; expected --imu "
                              f"{body}=IMU.csv (every body needs its own IMU)")
+    shared = [(first, second) for index, first in enumerate(bodies) for second in bodies[index + 1:]
+              if Path(per_body[first]).resolve() == Path(per_body[second]).resolve()]
+    if shared:
+        first, second = shared[0]
+        raise ValueError(f"{COMMAND_LINE}: --imu {first}= and --imu {second}= name the same file "
+                         f"{per_body[first]}; expected one IMU per body (one sensor cannot be on "
+                         "both)")
     extra = [body for body in per_body if body not in bodies]
     if extra:
         raise ValueError(f"{COMMAND_LINE}: --imu {extra[0]}=...: no body {extra[0]!r} among the "
