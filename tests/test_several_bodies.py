@@ -502,6 +502,8 @@ def test_batch_refuses_tracks_on_different_times():
         binding_margins(np.zeros((2, 3)), two_tracks(), **ROBOT)
     with pytest.raises(ValueError, match="expected at least one body's track"):
         binding_margins([0.0, 0.0, 0.0], {}, **ROBOT)
+    with pytest.raises(ValueError, match="'now' is not accepted; each row is used at its own t"):
+        binding_margins([0.0, 0.0, 0.0], two_tracks(), now=1.0, **ROBOT)
 
 
 def test_separation_is_the_existing_iso_composition():
