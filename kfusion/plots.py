@@ -44,6 +44,7 @@ from numpy.typing import NDArray  # noqa: E402
 from kfusion.conventions import LOST  # noqa: E402
 from kfusion.guards import atomic_write  # noqa: E402
 from kfusion.recording import Recording, occlusion_runs  # noqa: E402
+from kfusion.safety import BindingMargins  # noqa: E402
 from kfusion.track_file import TrackResult  # noqa: E402
 
 AXIS_NAMES = ("x", "y", "z")
@@ -701,3 +702,35 @@ def _draw_lines_panel(ax: Axes, frame: pd.DataFrame, *, x: str, value: str, hue:
         ax.set_yscale("log")
         plain_log_ticks(ax.yaxis)
     ax.grid(alpha=0.3, which="both")
+
+
+# --------------------------------------------------------------------------------------------
+# several bodies
+
+
+def binding_margin_figure(margins: BindingMargins, *, path: str | Path | None = None,
+                          title: str | None = None) -> Figure:
+    """The binding body's margin |robot - body| - S_p (m) over time
+    (:func:`kfusion.safety.binding_margins`): one colour per body where it binds, a dashed line
+    at 0 m (below it the robot must slow or stop), and red spans where the margin is unknown
+    (a body lost), which never read as a margin."""
+    figure, ax = plt.subplots(figsize=(9, 3.2), layout="constrained")
+    t = np.asarray(margins.t, dtype=float)
+    for index, name in enumerate(margins.names):
+        binds = (margins.body == name) & margins.known
+        if binds.any():
+            style = method_style(name, index)
+            ax.plot(t, np.where(binds, margins.margin, np.nan), color=style["color"],
+                    ls=style["ls"], lw=1.5, label=f"{name} binds")
+    step = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    for start, stop in occlusion_runs(margins.known):  # each unknown row to the next row
+        ax.axvspan(t[start], t[stop] if stop < len(t) else t[-1] + step, color="tab:red",
+                   alpha=0.2, lw=0, zorder=0, label="unknown (a body lost)")
+    ax.axhline(0.0, color="k", lw=0.8, ls="--", label="margin 0 m")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("binding margin |robot − body| − S_p (m)")
+    ax.grid(alpha=0.3)
+    legend_outside(figure, *_unique_handles([ax]))
+    if title:
+        ax.set_title(title)
+    return _save(figure, path)

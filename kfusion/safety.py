@@ -45,14 +45,25 @@ Unknown is explicit. When the tracker is lost, when no estimate is given, or whe
 has no usable uncertainty (the baseline method has none), the result has ``known=False`` and
 ``value=math.inf`` with a reason. It is never a small number, and because the value is infinite
 even a caller that only compares ``current_distance >= result.value`` gets "not safe".
+
+Several bodies (two forearms): :func:`binding_body` computes each body's margin
+``|robot - body| - S_p`` (m), with S_p as above and that body's bound as Z_d, and returns the
+body with the smallest margin. The result is unknown (``known=False``, ``margin=-math.inf``) as
+soon as any body's S_p is unknown: a lost body is never skipped, since it may be the nearest.
+:func:`binding_margins` applies it row by row to ``kfusion track`` outputs.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from numbers import Real
-from typing import Final, Protocol, runtime_checkable
+from types import MappingProxyType
+from typing import Any, Final, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from kfusion.conventions import LOST
 
@@ -70,10 +81,14 @@ DEFAULT_CONFIDENCE: Final = 0.99
 
 @runtime_checkable
 class HasBound(Protocol):
-    """What :func:`protective_separation_distance` needs from an estimate."""
+    """What :func:`protective_separation_distance` needs from an estimate: ``t`` (s), ``status``
+    and ``bound(confidence)`` (m); read-only, so frozen dataclasses qualify."""
 
-    t: float
-    status: str
+    @property
+    def t(self) -> float: ...
+
+    @property
+    def status(self) -> str: ...
 
     def bound(self, confidence: float = DEFAULT_CONFIDENCE) -> float: ...
 
@@ -297,3 +312,212 @@ def _confidence(value: float) -> float:
     if not 0.0 < number < 1.0:
         raise ValueError(f"confidence: expected a probability in (0, 1), got {number!r}")
     return number
+
+
+# ------------------------------------------------------------------------------------------
+# Several bodies: the binding body and its margin
+# ------------------------------------------------------------------------------------------
+
+
+@runtime_checkable
+class HasPosition(HasBound, Protocol):
+    """What :func:`binding_body` needs from a body's estimate: ``t`` (s), ``status``,
+    ``bound(confidence)`` (m) and ``position`` ((3,) m, global frame), as
+    :class:`kfusion.tracker.Estimate` and :class:`BodyEstimate` have."""
+
+    @property
+    def position(self) -> Any: ...
+
+
+@dataclass(frozen=True)
+class BodyEstimate:
+    """One body's estimate from a ``kfusion track`` row (or any position with per-axis sigmas).
+
+    Attributes:
+        t: time, s.
+        position: (3,) m, global frame; NaN when lost.
+        std: (3,) 1-sigma per axis, m; NaN when the method gives none.
+        status: ``tracked``, ``bridged`` or ``lost``.
+    """
+
+    t: float
+    position: NDArray[np.float64]
+    std: NDArray[np.float64]
+    status: str
+
+    def bound(self, confidence: float = DEFAULT_CONFIDENCE) -> float:
+        """Z_d, m: :func:`kfusion.tracker.position_bound` of the covariance diag(std^2), as
+        :meth:`kfusion.tracker.Estimate.bound` (``math.inf`` when lost or without std)."""
+        from kfusion.tracker import position_bound  # scipy and filterpy only when used
+
+        if self.status == LOST:
+            return math.inf
+        return position_bound(np.diag(np.square(np.asarray(self.std, dtype=float))), confidence)
+
+
+@dataclass(frozen=True)
+class BindingBody:
+    """The body nearest to violating the protective separation distance (all lengths in m).
+
+    margin_i = |robot - body_i| - S_p,i, with S_p,i from :func:`protective_separation_distance`
+    for body i's estimate (its bound is that body's Z_d); the binding body has the smallest margin.
+    A negative margin means the robot is closer to that body than S_p: not permitted.
+
+    Unknown is explicit: when any body's S_p is unknown (lost, no usable bound, no position) or no
+    body is given, ``known`` is False, ``body`` is None and ``margin`` is ``-math.inf``, so even a
+    caller that only checks ``margin >= 0`` gets "not safe". A lost body is never skipped: the
+    body nobody can see may be the nearest.
+
+    Attributes:
+        known: False when the margin cannot be given.
+        body: the binding body's name (None when unknown).
+        margin: the binding body's margin, m; ``-math.inf`` when unknown.
+        distance: |robot - body| of the binding body, m; NaN when unknown.
+        separation: the binding body's :class:`SeparationDistance` (None when unknown).
+        margins: every body's margin, m, in the order given (``-math.inf`` for an unknown one).
+        unknown_bodies: the bodies whose S_p is unknown, in the order given.
+        reason: why the result is unknown ("" when known).
+    """
+
+    known: bool
+    body: str | None
+    margin: float
+    distance: float
+    separation: SeparationDistance | None
+    margins: Mapping[str, float]
+    unknown_bodies: tuple[str, ...]
+    reason: str
+
+    def permits(self) -> bool:
+        """True only if the margin is known and at least 0 m."""
+        return self.known and self.margin >= 0.0
+
+
+def body_margin(robot_position: NDArray[np.float64], position: ArrayLike,
+                separation: SeparationDistance) -> tuple[float, float]:
+    """(margin, distance), m: distance = |robot - body|, margin = distance - S_p.
+
+    ``(-math.inf, NaN)`` when S_p is unknown or the body's position is not finite."""
+    body = np.asarray(position, dtype=float)
+    if not separation.known or body.shape != (3,) or not np.isfinite(body).all():
+        return -math.inf, math.nan
+    distance = float(np.linalg.norm(robot_position - body))
+    return distance - separation.value, distance
+
+
+def binding_body(robot_position: ArrayLike, estimates: Mapping[str, HasPosition],
+                 **separation: Any) -> BindingBody:
+    """The binding body among several and its margin |robot - body| - S_p (m).
+
+    Args:
+        robot_position: (3,) m, global frame: the robot's point nearest to the human.
+        estimates: body name -> estimate (:class:`kfusion.tracker.Estimate`,
+            :class:`BodyEstimate`, or anything with ``t``, ``status``, ``bound(confidence)`` and
+            ``position``).
+        **separation: the keyword arguments of :func:`protective_separation_distance`
+            (``robot_speed``, ``reaction_time``, ``stopping_time``, ``stopping_distance``,
+            ``robot_position_uncertainty``, and optionally ``intrusion_distance``,
+            ``sensing_latency``, ``now``, ``human_speed``, ``confidence``), shared by every body.
+
+    Returns:
+        :class:`BindingBody`; unknown (``margin = -math.inf``) when any body is lost or has no
+        usable bound, or when ``estimates`` is empty. Ties go to the first body given.
+
+    Raises:
+        ValueError: a robot position that is not 3 finite numbers, an estimate of the wrong type,
+            or a bad separation argument (as :func:`protective_separation_distance`).
+    """
+    robot = np.asarray(robot_position, dtype=float)
+    if robot.shape != (3,) or not np.isfinite(robot).all():
+        raise ValueError(f"robot_position: expected 3 finite numbers (m), got shape "
+                         f"{robot.shape}" + ("" if robot.shape != (3,) else f" {robot.tolist()}"))
+    margins: dict[str, float] = {}
+    best: tuple[str, float, float, SeparationDistance] | None = None
+    unknown: list[str] = []
+    for name, estimate in estimates.items():
+        if not isinstance(estimate, HasPosition):
+            raise ValueError(f"estimates[{name!r}]: expected an estimate with t, status, "
+                             f"bound(confidence) and position, got {type(estimate).__name__}")
+        distance_to_stop = protective_separation_distance(estimate, **separation)
+        margin, distance = body_margin(robot, estimate.position, distance_to_stop)
+        margins[name] = margin
+        if margin == -math.inf:
+            unknown.append(name)
+        elif best is None or margin < best[1]:
+            best = (name, margin, distance, distance_to_stop)
+    if unknown or best is None:
+        reason = (f"{', '.join(repr(name) for name in unknown)}: position unknown (lost or no "
+                  "usable bound)" if unknown else "no body estimates: position unknown")
+        return BindingBody(known=False, body=None, margin=-math.inf, distance=math.nan,
+                           separation=None, margins=MappingProxyType(margins),
+                           unknown_bodies=tuple(unknown), reason=reason)
+    name, margin, distance, distance_to_stop = best
+    return BindingBody(known=True, body=name, margin=margin, distance=distance,
+                       separation=distance_to_stop, margins=MappingProxyType(margins),
+                       unknown_bodies=(), reason="")
+
+
+@dataclass(frozen=True)
+class BindingMargins:
+    """:func:`binding_body` at every row of several bodies' tracks (lengths in m, times in s).
+
+    Attributes:
+        t: (m,) the tracks' times, s.
+        body: (m,) the binding body's name per row ("" where unknown).
+        margin: (m,) its margin |robot - body| - S_p, m; ``-inf`` where unknown.
+        known: (m,) False where any body is lost or has no usable bound.
+        names: the bodies, in the order given.
+    """
+
+    t: NDArray[np.float64]
+    body: NDArray[np.str_]
+    margin: NDArray[np.float64]
+    known: NDArray[np.bool_]
+    names: tuple[str, ...]
+
+
+def binding_margins(robot_position: ArrayLike, tracks: Mapping[str, Any],
+                    **separation: Any) -> BindingMargins:
+    """:func:`binding_body` row by row over several bodies' tracks on one time base.
+
+    Args:
+        robot_position: (3,) m, a fixed robot point, or (m, 3) m, one per row.
+        tracks: body name -> :class:`kfusion.track_file.TrackResult` (e.g.
+            :func:`kfusion.track_file.read_track` of each file ``kfusion track`` wrote for a
+            folder of bodies); all with the same times, s.
+        **separation: as :func:`binding_body` (``now`` is not accepted: each row is used at its
+            own time).
+
+    Raises:
+        ValueError: no tracks, tracks whose times differ (naming the body), a robot position of
+            the wrong shape, or a bad separation argument.
+    """
+    if "now" in separation:
+        raise ValueError("binding_margins: 'now' is not accepted; each row is used at its own t")
+    if not tracks:
+        raise ValueError("binding_margins: expected at least one body's track, got none")
+    names = tuple(tracks)
+    t = np.asarray(tracks[names[0]].t, dtype=float)
+    for name in names[1:]:
+        other = np.asarray(tracks[name].t, dtype=float)
+        if other.shape != t.shape or not np.array_equal(other, t):
+            raise ValueError(f"binding_margins: track {name!r} has {other.shape[0]} rows "
+                             f"({other[0] if len(other) else 'none'}.. s); expected the times "
+                             f"of track {names[0]!r} ({t.shape[0]} rows)")
+    robot = np.asarray(robot_position, dtype=float)
+    if robot.shape == (3,):
+        robot = np.broadcast_to(robot, (t.shape[0], 3))
+    if robot.shape != (t.shape[0], 3):
+        raise ValueError(f"robot_position: expected shape (3,) or ({t.shape[0]}, 3) m, got "
+                         f"{robot.shape}")
+    body = np.full(t.shape[0], "", dtype=object)
+    margin = np.full(t.shape[0], -math.inf)
+    for row in range(t.shape[0]):
+        result = binding_body(robot[row], {
+            name: BodyEstimate(t=float(t[row]), position=track.position[row],
+                               std=track.std[row], status=str(track.status[row]))
+            for name, track in tracks.items()}, **separation)
+        body[row] = result.body or ""
+        margin[row] = result.margin
+    return BindingMargins(t=t, body=body.astype(str), margin=margin,
+                          known=np.isfinite(margin), names=names)

@@ -12,7 +12,11 @@
   the frames where all markers are seen, and the rigid-body pose is solved by Kabsch in each
   frame where 3 or more are (:mod:`kfusion.rigid_body`); other frames are occluded. Writes
   ``mocap.csv``, ``markers.csv`` and ``recording.yaml`` with ``markers``; the IMU and the mount
-  are handled as for ``motive``.
+  are handled as for ``motive``. ``--body NAME`` takes the labels ``NAME:...``.
+* Several bodies of one C3D file: ``--imu BODY=IMU.csv`` once per body (every body needs its own
+  IMU), with ``--body BODY`` repeated, ``--all-bodies`` (every label prefix) or neither (the
+  bodies named by ``--imu``). Each body is written to ``DIR/BODY/``, without ``imu_to_body``
+  (calibrate each). Every folder is checked and every body converted before any is written.
 * ``broad FILE.mat``: a BROAD trial; ``--mocap-step 3`` keeps every 3rd mocap frame (~95 Hz).
 
 The files written are read back and validated (as ``kfusion check`` does) before the summary is
@@ -24,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +38,7 @@ from kfusion.commands.check import summarise
 from kfusion.conventions import OPTITRACK_GRAVITY, Z_UP_GRAVITY
 from kfusion.profiles import imu_profile
 from kfusion.readers.broad import read_broad
-from kfusion.readers.c3d import read_c3d_markers
+from kfusion.readers.c3d import read_c3d_bodies, read_c3d_markers
 from kfusion.readers.markers import parse_marker_names
 from kfusion.readers.motive import read_motive_csv, read_motive_markers
 from kfusion.recording import (
@@ -76,10 +81,18 @@ def _add_output(parser: argparse.ArgumentParser) -> None:
                         help="overwrite a recording already in DIR")
 
 
-def _add_imu_options(parser: argparse.ArgumentParser, body: str) -> None:
-    """The IMU file and the recording.yaml options shared by ``motive`` and ``c3d``."""
-    parser.add_argument("--imu", required=True, metavar="IMU.csv",
-                        help="IMU samples: t, ax, ay, az, gx, gy, gz (s, m/s^2, rad/s)")
+def _add_imu_options(parser: argparse.ArgumentParser, body: str, *,
+                     several_bodies: bool = False) -> None:
+    """The IMU file and the recording.yaml options shared by ``motive`` and ``c3d``
+    (``several_bodies``: ``--imu`` may be repeated as ``BODY=IMU.csv``)."""
+    if several_bodies:
+        parser.add_argument("--imu", required=True, action="append", metavar="[BODY=]IMU.csv",
+                            help="IMU samples: t, ax, ay, az, gx, gy, gz (s, m/s^2, rad/s); "
+                            "for several bodies BODY=IMU.csv, once per body (each body needs "
+                            "its own IMU)")
+    else:
+        parser.add_argument("--imu", required=True, metavar="IMU.csv",
+                            help="IMU samples: t, ax, ay, az, gx, gy, gz (s, m/s^2, rad/s)")
     parser.add_argument("--imu-to-body", nargs=4, type=float, metavar=("W", "X", "Y", "Z"),
                         help=f"unit quaternion IMU -> {body}, if known (default: left out "
                         "of recording.yaml; then run kfusion calibrate DIR --out "
@@ -122,23 +135,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "file in the imu.csv layout on the same clock. Solves the rigid-body "
                              "pose by Kabsch wherever 3 or more of the markers are seen; the "
                              "rigid body's origin is the markers' centroid, its axes the global "
-                             "axes at the first frame where all are seen. Needs ezc3d (pip "
-                             "install 'kfusion[c3d]').")
+                             "axes at the first frame where all are seen. Several bodies (labels "
+                             "BODY:NAME): --imu BODY=IMU.csv for each, with --body BODY "
+                             "repeated or --all-bodies; each is written to DIR/BODY. Needs ezc3d "
+                             "(pip install 'kfusion[c3d]').")
     c3d.add_argument("c3d", metavar="FILE.c3d", help="C3D file")
     c3d.add_argument("--markers", metavar="M1,M2,M3[,...]",
                      help="the cluster's markers, 3 or more (a name matches a POINT:LABELS "
-                     "label, or the part after its last ':'); required without --body")
-    c3d.add_argument("--body", metavar="NAME",
+                     "label, or the part after its last ':'); required for one body without --body")
+    c3d.add_argument("--body", metavar="NAME", action="append",
                      help="one body's markers: the labels NAME:... (all of them, or those of "
-                     "--markers)")
-    _add_imu_options(c3d, "rigid body")
+                     "--markers); repeat it for several bodies, with --imu NAME=IMU.csv each")
+    c3d.add_argument("--all-bodies", action="store_true",
+                     help="convert every body of the file (every prefix NAME of a label "
+                     "NAME:...), with --imu NAME=IMU.csv for each")
+    _add_imu_options(c3d, "rigid body", several_bodies=True)
     c3d.add_argument("--gravity", nargs=3, type=float, metavar=("GX", "GY", "GZ"),
                      help="gravity in the mocap world, m/s^2 (default: minus the file's "
                      "POINT:Y_SCREEN axis, else z-up 0 0 -9.81 as Vicon and Qualisys)")
     c3d.add_argument("--max-residual", type=float, default=DEFAULT_MAX_RESIDUAL * 1e3,
                      metavar="MM", help="a frame whose worst marker misses the fitted cluster by "
                      "more is left occluded (a swapped marker), mm (default %(default)g)")
-    c3d.add_argument("--name", help="recording name (default: the file's stem)")
+    c3d.add_argument("--name", help="recording name (default: the file's stem; for several "
+                     "bodies NAME-BODY)")
     _add_output(c3d)
     c3d.set_defaults(_convert=_convert_c3d)
 
@@ -253,6 +272,134 @@ def _convert_c3d(args: argparse.Namespace) -> tuple[Recording, list[str]]:
     return _with_imu(args, path, mocap, gravity, markers, positions), notes
 
 
+@dataclass(frozen=True)
+class C3dBodies:
+    """The bodies of a several-body ``convert c3d``: body name -> its IMU file, in order."""
+
+    imu: dict[str, str]
+
+
+def split_imu_options(values: Sequence[str]) -> tuple[str | None, dict[str, str]]:
+    """``--imu`` values -> (the one plain IMU file or None, {BODY: IMU file}).
+
+    A value ``BODY=FILE`` names a body's IMU unless it is itself an existing file. Plain files
+    and ``BODY=FILE`` cannot be mixed; a plain file is given once, each body once.
+    """
+    plain: list[str] = []
+    per_body: dict[str, str] = {}
+    for value in values:
+        body, separator, file = value.partition("=")
+        if not separator or Path(value).is_file():
+            plain.append(value)
+            continue
+        if not body or not file:
+            raise ValueError(f"{COMMAND_LINE}: --imu {value!r}; expected BODY=IMU.csv with a "
+                             "body name and a file")
+        if body in per_body:
+            raise ValueError(f"{COMMAND_LINE}: --imu names body {body!r} twice; expected one "
+                             "IMU file per body")
+        per_body[body] = file
+    if plain and per_body:
+        raise ValueError(f"{COMMAND_LINE}: --imu {plain[0]!r} and --imu "
+                         f"{next(iter(per_body))}=...: expected either one IMU file (one body) "
+                         "or BODY=IMU.csv for every body")
+    if len(plain) > 1:
+        raise ValueError(f"{COMMAND_LINE}: --imu given {len(plain)} times without BODY=; "
+                         "expected one IMU file, or BODY=IMU.csv for each of several bodies")
+    return (plain[0] if plain else None), per_body
+
+
+def folder_name_problem(body: str) -> str | None:
+    """Why a body name cannot name its recording folder (None when it can)."""
+    if body in ("", ".", "..") or any(c in body for c in "/\\") or not body.isprintable() \
+            or body != body.strip():
+        return (f"body {body!r} cannot name a folder; expected a name without '/', '\\', "
+                "leading or trailing spaces")
+    return None
+
+
+def plan_c3d_bodies(args: argparse.Namespace) -> C3dBodies | None:
+    """Resolve ``--imu``, ``--body`` and ``--all-bodies`` of ``convert c3d``.
+
+    One plain ``--imu FILE`` converts one body (at most one ``--body``) into ``--out``: returns
+    None and leaves ``args.imu`` a file and ``args.body`` a name or None. ``--imu BODY=FILE``
+    (or ``--all-bodies``) converts several, each into ``--out/BODY``: returns the bodies, which
+    are those of ``--body``, else every body of the file with ``--all-bodies``, else those of
+    ``--imu``; each must have exactly one IMU file. ValueError naming the body at fault.
+    """
+    imu, per_body = split_imu_options(args.imu)
+    bodies = list(args.body or [])
+    if len(set(bodies)) != len(bodies):
+        raise ValueError(f"{COMMAND_LINE}: --body names {bodies} repeat a body; expected each "
+                         "body once")
+    if args.all_bodies and bodies:
+        raise ValueError(f"{COMMAND_LINE}: --all-bodies and --body {bodies[0]}: expected one "
+                         "of them")
+    if imu is not None:
+        if args.all_bodies or len(bodies) > 1:
+            chosen = "--all-bodies" if args.all_bodies else f"--body {' --body '.join(bodies)}"
+            raise ValueError(f"{COMMAND_LINE}: {chosen} with one --imu {imu}: every body needs "
+                             "its own IMU; expected --imu BODY=IMU.csv for each body")
+        args.imu, args.body = imu, (bodies[0] if bodies else None)
+        return None
+    if args.imu_to_body is not None or args.lever_arm is not None:
+        option = "--imu-to-body" if args.imu_to_body is not None else "--lever-arm"
+        raise ValueError(f"{COMMAND_LINE}: {option} describes one body's IMU; with several "
+                         "bodies leave it out and run kfusion calibrate on each body's folder "
+                         "(or convert the bodies one at a time)")
+    if args.all_bodies:
+        bodies = list(read_c3d_bodies(args.c3d))
+    elif not bodies:
+        bodies = list(per_body)
+    for body in bodies:
+        problem = folder_name_problem(body)
+        if problem is not None:
+            raise ValueError(f"{COMMAND_LINE}: {problem}")
+        if body not in per_body:
+            raise ValueError(f"{COMMAND_LINE}: body {body!r} has no IMU file; expected --imu "
+                             f"{body}=IMU.csv (every body needs its own IMU)")
+    shared = [(first, second) for index, first in enumerate(bodies) for second in bodies[index + 1:]
+              if Path(per_body[first]).resolve() == Path(per_body[second]).resolve()]
+    if shared:
+        first, second = shared[0]
+        raise ValueError(f"{COMMAND_LINE}: --imu {first}= and --imu {second}= name the same file "
+                         f"{per_body[first]}; expected one IMU per body (one sensor cannot be on "
+                         "both)")
+    extra = [body for body in per_body if body not in bodies]
+    if extra:
+        raise ValueError(f"{COMMAND_LINE}: --imu {extra[0]}=...: no body {extra[0]!r} among the "
+                         f"bodies converted {bodies}")
+    return C3dBodies(imu={body: per_body[body] for body in bodies})
+
+
+def _convert_c3d_bodies(args: argparse.Namespace, bodies: C3dBodies) -> int:
+    """Convert several bodies of a C3D file, each into ``--out/BODY``: every folder is checked
+    and every body converted in memory before the first folder is written."""
+    out = Path(args.out)
+    for body in bodies.imu:
+        check_output_folder(out / body, args.force)
+    stem = args.name or Path(args.c3d).stem
+    converted = []
+    for body, imu in bodies.imu.items():
+        options = argparse.Namespace(**{**vars(args), "imu": imu, "body": body,
+                                        "name": f"{stem}-{body}"})
+        try:
+            converted.append((body, *_convert_c3d(options)))
+        except ValueError as error:
+            raise ValueError(f"body {body!r}: {error}") from None
+    for body, recording, notes in converted:
+        written = write_without_mount(recording, out / body)
+        print(f"c3d: body {body}: wrote {out / body}")
+        for note in notes:
+            print(note)
+        print(summarise(written))
+    print(f"{len(converted)} bodies ({', '.join(bodies.imu)}) in {out}; imu_to_body left out of "
+          f"each {META_FILE}; next: kfusion calibrate {out / 'BODY'} --out "
+          f"{out / 'BODY' / META_FILE} for each body, then kfusion track {out} --out TRACKS/ "
+          "(one track per body)")
+    return 0
+
+
 def _convert_broad(args: argparse.Namespace) -> tuple[Recording, list[str]]:
     return read_broad(args.trial, mocap_step=args.mocap_step), []
 
@@ -281,6 +428,10 @@ def write_without_mount(recording: Recording, folder: Path) -> Recording:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.format == "c3d":
+        bodies = plan_c3d_bodies(args)
+        if bodies is not None:
+            return _convert_c3d_bodies(args, bodies)
     folder = Path(args.out)
     check_output_folder(folder, args.force)
     recording, notes = args._convert(args)

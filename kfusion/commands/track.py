@@ -1,12 +1,21 @@
-"""``kfusion track DIR --method NAME --out OUT.csv``: run an estimator over a recording folder."""
+"""``kfusion track DIR --method NAME --out OUT.csv``: run an estimator over a recording folder.
+
+With a folder of recording folders (one per body, as ``kfusion convert c3d --imu BODY=...``
+writes), ``--out`` is a folder and each body's track is written to ``OUT/BODY.csv``
+(:mod:`kfusion.bodies`).
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from kfusion.bodies import TRACK_SUFFIX, body_folders, for_each_body
 from kfusion.calibration.diagnosis import diagnose
 from kfusion.config import check_methods
 from kfusion.conventions import STATUSES
@@ -84,7 +93,9 @@ def measurement_mode(recording: Recording, method: str, requested: str | None) -
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("folder", metavar="DIR", help="recording folder")
+    parser.add_argument("folder", metavar="DIR", help="recording folder, or a folder of "
+                        "recording folders (one per body: then --out is a folder and each "
+                        "body's track is OUT/BODY.csv)")
     parser.add_argument("--method", choices=sorted(METHODS), default="kalman",
                         help="estimator (default: kalman)")
     parser.add_argument("--out", required=True, metavar="OUT.csv",
@@ -108,6 +119,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    bodies = body_folders(args.folder)
+    if bodies:
+        return track_bodies(args, bodies)
     recording = read_recording(args.folder, zero_position_means_occluded=args.zeros_occluded)
     options = parse_options(args.options, args.method)
     # the clock is tested as the filter will take it: with an overridden IMU latency
@@ -129,3 +143,26 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.method}: wrote {len(result)} rows to {path} ({summary}; measurement: "
           f"{measurement}{engine_text})")
     return 0
+
+
+def track_bodies(args: argparse.Namespace, bodies: list[Path]) -> int:
+    """Run the single-folder ``track`` on each body folder, writing ``--out/BODY.csv``; a body
+    that fails is reported and the others complete (exit 2 if any failed)."""
+    out = Path(args.out)
+    if out.suffix.lower() == TRACK_SUFFIX or out.is_file():
+        raise ValueError(f"--out {out}: {args.folder} is a folder of {len(bodies)} bodies "
+                         f"({', '.join(body.name for body in bodies)}); expected an output "
+                         "folder (one BODY.csv per body)")
+    out.mkdir(parents=True, exist_ok=True)
+
+    def track_one(folder: Path) -> str:
+        output = io.StringIO()
+        with contextlib.redirect_stdout(output):
+            run(argparse.Namespace(**{**vars(args), "folder": str(folder),
+                                      "out": str(out / f"{folder.name}{TRACK_SUFFIX}")}))
+        return f"body {folder.name}: {output.getvalue().strip()}"
+
+    failures = for_each_body(bodies, track_one, description="track")
+    print(f"{len(bodies) - len(failures)} of {len(bodies)} bodies tracked into {out}"
+          + (f"; failed: {', '.join(failure.body for failure in failures)}" if failures else ""))
+    return 2 if failures else 0

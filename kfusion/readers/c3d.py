@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kfusion.readers.markers import match_markers
+from kfusion.readers.markers import listed, match_markers
 from kfusion.recording import (
     MAX_PLAUSIBLE_POSITION,
     MarkerFrames,
@@ -125,15 +125,33 @@ def _load(path: Path) -> dict[str, Any]:
     return content
 
 
+def body_prefixes(labels: Sequence[str]) -> tuple[str, ...]:
+    """The bodies named in labels ``BODY:NAME`` (the part before the last ``:``), sorted."""
+    return tuple(sorted({label.rpartition(":")[0] for label in labels if ":" in label}))
+
+
 def body_marker_names(file: str, labels: Sequence[str], body: str) -> tuple[str, ...]:
     """The markers of one body: the labels ``BODY:NAME`` (Vicon's subject prefix, Motive's rigid
     body), as ``BODY:NAME``. Raises RecordingError listing the prefixes when there are none."""
     chosen = tuple(label for label in labels if label.rpartition(":")[0] == body)
     if not chosen:
-        prefixes = sorted({label.rpartition(":")[0] for label in labels if ":" in label})
         raise RecordingError(file, f"no label 'BODY:NAME' with BODY {body!r}; expected one of "
-                             f"the prefixes {prefixes} in POINT:LABELS")
+                             f"the prefixes {list(body_prefixes(labels))} in POINT:LABELS")
     return chosen
+
+
+def read_c3d_bodies(path: str | Path) -> tuple[str, ...]:
+    """The bodies of a C3D file: the prefixes of its ``BODY:NAME`` labels (``POINT:LABELS``),
+    sorted. Raises RecordingError when the file has none."""
+    path = Path(path)
+    content = _load(path)
+    points = np.asarray(content["data"]["points"], dtype=float)
+    labels = _labels(content["parameters"], points.shape[1] if points.ndim == 3 else 0)
+    bodies = body_prefixes(labels)
+    if not bodies:
+        raise RecordingError(path.name, "no label 'BODY:NAME' in POINT:LABELS, so no body to "
+                             f"convert; labels: {listed(labels)} (give --markers instead)")
+    return bodies
 
 
 def read_c3d_markers(path: str | Path, names: Sequence[str] | None = None, *,
