@@ -459,3 +459,54 @@ def test_a_tracker_from_recording_yaml_takes_its_markers(partial, tmp_path):
         outcome = tracker.push_markers(recording.mocap.t[row], marker_frame(recording, row))
         assert outcome.accepted
     assert tracker.health.markers_used == 12 and tracker.health.mocap_fused == 3
+
+
+def test_consistent_markers_by_hand():
+    from kfusion.kalman.markers import consistent_markers
+
+    R = np.eye(12) * 1e-6  # 1 mm per axis, independent
+    agree = np.zeros((4, 3))
+    # all agree: every marker kept
+    assert consistent_markers(agree, R, 16.27, 0.0).all()
+    # one marker 5 cm off (a swap): the other three kept
+    one_off = agree.copy()
+    one_off[2] = [0.05, 0.0, 0.0]
+    assert consistent_markers(one_off, R, 16.27, 0.0).tolist() == [True, True, False, True]
+    # labels cycled among three: each disagrees with every other, no set of 2 agrees
+    cycled = np.array([[0.0, 0.0, 0.0], [0.04, 0.0, 0.0], [0.0, 0.04, 0.0], [0.0, 0.0, 0.04]])
+    assert not consistent_markers(cycled, R, 16.27, 0.0).any()
+    # two groups of two: ambiguous, none
+    split = np.array([[0.0, 0, 0], [0.0, 0, 0], [0.05, 0, 0], [0.05, 0, 0]])
+    assert not consistent_markers(split, R, 16.27, 0.0).any()
+    # a disagreement within min_innovation counts as agreement; one marker alone is never kept
+    assert consistent_markers(one_off, R, 16.27, 0.06).all()
+    assert not consistent_markers(agree[:1], R[:3, :3], 16.27, 0.0).any()
+    # the common (orientation) part of the noise cancels in a difference: a shared 1 m^2
+    # term does not make a 5 cm disagreement consistent
+    shared = R + np.kron(np.ones((4, 4)), np.eye(3))
+    assert consistent_markers(one_off, shared, 16.27, 0.0).tolist() == [True, True, False, True]
+
+
+def test_cycled_labels_for_good_are_not_fused_as_a_reacquisition():
+    # three of four markers' labels cycled from 10 s on: the frame's markers disagree among
+    # themselves, so they are not fused; before, one mislabelled marker passed the loosened
+    # gate and the track was 90-430 mm off with a 2-22 mm bound
+    from kfusion.kalman import run_filter
+    from kfusion.simulate import MarkerSpec, simulate
+
+    recording = simulate("random_reach", seed=0, duration=20.0, markers=MarkerSpec()).recording
+    markers = recording.markers
+    position = np.array(markers.position)
+    later = markers.t >= 10.0
+    position[later, 0], position[later, 1], position[later, 2] = (
+        markers.position[later, 1], markers.position[later, 2], markers.position[later, 0])
+    broken = dataclasses.replace(recording, markers=dataclasses.replace(markers,
+                                                                        position=position))
+    result = run_filter(broken, measurement="markers").result
+    truth = simulate("random_reach", seed=0, duration=20.0, markers=MarkerSpec()).truth
+    assert np.array_equal(truth.t, result.t)
+    rows = result.t >= 10.0
+    live = rows & (result.status != "lost")
+    error = np.linalg.norm(result.position[live] - truth.position[live], axis=1)
+    bound = np.sqrt(16.27 * np.sum(result.std[live] ** 2, axis=1))
+    assert np.mean(error > bound) <= 0.01, (np.mean(error > bound), np.max(error / bound))

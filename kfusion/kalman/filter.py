@@ -101,6 +101,7 @@ from kfusion.kalman import model
 from kfusion.kalman.events import imu_event_time
 from kfusion.kalman.markers import (
     common_error_variance,
+    consistent_markers,
     fit_angle_variance,
     marker_arms,
     marker_gate,
@@ -507,7 +508,9 @@ class KalmanFusion:
         orientation, gated against the gyroscope as a rigid body's is; otherwise the orientation
         is the gyroscope-propagated one, and its angle variance enters each marker's noise.
         Each marker is gated alone (chi-square(3) at ``gate_probability`` and beyond
-        ``gate_min_innovation``, while the prediction is valid), and the markers that pass are
+        ``gate_min_innovation``, while the prediction is valid), and must agree among
+        themselves (the unique largest pairwise-consistent set of 2 or more,
+        :func:`kfusion.kalman.markers.consistent_markers`); the markers that pass are
         fused together with their correlated noise (:func:`kfusion.kalman.markers.
         marker_noise`). The first fix needs 3 markers (the orientation and position are
         initialised from their pose).
@@ -898,7 +901,11 @@ class KalmanFusion:
                 (float(q[0]), float(q[1]), float(q[2]), float(q[3])), self._q_body_imu))
             fit_variance = max(orientation.measurement_variance,
                                fit_angle_variance(body, marker_variance))
-            if self._orientation_disagrees(t, q_global_imu, fit_variance):
+            # a marker cluster's pose with labels swapped or cycled can fit within
+            # DEFAULT_MAX_RESIDUAL, rotated: gated against the gyroscope for as long as the
+            # gyroscope's orientation holds, not only max_bridge_s
+            if self._orientation_disagrees(t, q_global_imu, fit_variance,
+                                           gyroscope_unbroken=True):
                 self._counters["orientation_gated"] += 1
                 q_global_imu = None  # positions only: the orientation stays the gyro's
         if not orientation.state.initialised:
@@ -944,8 +951,15 @@ class KalmanFusion:
                                + R_all[3 * i:3 * i + 3, 3 * i:3 * i + 3])
                     for i in range(len(points))]
         since = t - self._last_fix if self._last_fix is not None else math.inf
+        prediction_valid = since <= self.params.max_bridge_s
         keep = marker_gate(nis_each, innovations, self._gate, self.params.gate_min_innovation,
-                           since <= self.params.max_bridge_s)
+                           prediction_valid)
+        if len(points) >= 2:
+            # the markers must also agree among themselves: a swap or cycled labels make them
+            # disagree by centimetres, and a prediction grown loose (or none, after
+            # max_bridge_s) could let a wrong one through its own gate
+            keep &= consistent_markers(innovations, R_all, self._gate,
+                                       self.params.gate_min_innovation)
         rejected = int(len(points) - keep.sum())
         self._counters["markers_gated"] += rejected
         if not keep.any():
@@ -1012,14 +1026,19 @@ class KalmanFusion:
         self._counters["resets"] += 1
 
     def _orientation_disagrees(self, t: float, q_global_imu: Quaternion,
-                               measurement_variance: float | None = None) -> bool:
+                               measurement_variance: float | None = None, *,
+                               gyroscope_unbroken: bool = False) -> bool:
         """The mocap orientation fails the gate against the gyroscope-propagated one
         (:func:`kfusion.streamhealth.orientation_gated`), while that one is still valid (an
-        accepted orientation at most ``max_bridge_s`` ago). ``measurement_variance``: the
-        orientation's noise (rad^2) when not the configured one."""
+        accepted orientation at most ``max_bridge_s`` ago, or with ``gyroscope_unbroken``
+        any time the gyroscope has had no outage since the last fix: its covariance grows
+        with the time it has integrated alone). ``measurement_variance``: the orientation's
+        noise (rad^2) when not the configured one."""
         state = self._orientation.state
-        if not (state.initialised and self.params.gating and self._last_orientation_fix
-                is not None and t - self._last_orientation_fix <= self.params.max_bridge_s):
+        recent = (self._last_orientation_fix is not None
+                  and t - self._last_orientation_fix <= self.params.max_bridge_s)
+        if not (state.initialised and self.params.gating and (
+                recent or (gyroscope_unbroken and not self._outage_since_fix))):
             return False
         innovation = quaternion_log(quaternion_product(conjugate(state.quaternion),
                                                        q_global_imu))

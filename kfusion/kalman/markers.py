@@ -45,6 +45,7 @@ Gate: each marker is tested alone against its own 3x3 innovation covariance
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import combinations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -159,6 +160,51 @@ def marker_gate(nis: Sequence[float], innovations: ArrayLike, threshold: float,
     failed = (values > threshold) & (length_squared > min_innovation ** 2)
     absurd = ~np.isfinite(values) | ~np.isfinite(y).all(axis=1)
     return ~absurd & ~(failed & prediction_valid)
+
+
+def consistent_markers(innovations: ArrayLike, R: ArrayLike, threshold: float,
+                       min_innovation: float, max_markers: int = 12) -> NDArray[np.bool_]:
+    """The markers of one frame that agree with each other about where the body is (k,): the
+    unique largest set of at least 2 markers that are pairwise consistent, else none. Used
+    with :func:`marker_gate`, which tests each marker against the prediction alone (and lets
+    every marker through when there is none).
+
+    Marker i's innovation is ``y_i = z_i - c_i - H x`` (every marker has the same H,
+    :func:`stacked_measurement`), so ``y_i - y_j = z_i - z_j - R (m_i - m_j)`` does not
+    depend on the state: it is how far the two markers disagree about the body's position.
+    Its covariance is ``C_ij = R_ii + R_jj - R_ij - R_ji`` (blocks of the stacked noise R,
+    :func:`marker_noise`, orientation error included), and the pair is consistent when
+    ``d^T C_ij^-1 d <= threshold`` or ``|d| <= min_innovation``. A marker swapped with
+    another, or labels cycled among three, disagree with the rest by centimetres; two
+    groups of equal size, one marker alone, or more than ``max_markers`` markers (the search
+    is over subsets) give none: the frame cannot tell which markers to trust.
+
+    Shapes: innovations (k, 3) m, R (3k, 3k) m^2."""
+    y = np.asarray(innovations, dtype=float).reshape(-1, 3)
+    noise = np.asarray(R, dtype=float)
+    count = len(y)
+    none = np.zeros(count, dtype=bool)
+    if count < 2 or count > max_markers:
+        return none
+    blocks = noise.reshape(count, 3, count, 3).transpose(0, 2, 1, 3)  # blocks[i, j] = R_ij
+    agree = np.eye(count, dtype=bool)
+    for i in range(count):
+        for j in range(i + 1, count):
+            d = y[i] - y[j]
+            C = blocks[i, i] + blocks[j, j] - blocks[i, j] - blocks[j, i]
+            agree[i, j] = agree[j, i] = bool(
+                np.all(np.isfinite(d)) and (float(d @ d) <= min_innovation ** 2
+                                            or marker_nis(d, C) <= threshold))
+    for size in range(count, 1, -1):
+        found = [members for members in combinations(range(count), size)
+                 if agree[np.ix_(members, members)].all()]
+        if len(found) > 1:
+            return none
+        if found:
+            keep = none.copy()
+            keep[list(found[0])] = True
+            return keep
+    return none
 
 
 def marker_nis(y: ArrayLike, S: ArrayLike) -> float:
