@@ -26,7 +26,6 @@ from scipy.spatial.transform import Rotation
 
 from kfusion.calibration.specific_force import (
     CUTOFF_HZ,
-    UNKNOWNS,
     robust_least_squares,
     specific_force_system,
     symmetric_scale_design,
@@ -164,8 +163,7 @@ def force_mount_information(recording: Recording, offset: float, drift_ppm: floa
     information, vector = marginal_information(A.T @ A * weight, A.T @ b * weight, target)
     # the force's direction in the body frame: the mount columns are R_global_body [f_body]x,
     # so f_body is read back from them (column j of [f]x is e_j x f)
-    mount_block = design[inlier][:, :, UNKNOWNS:][:, :, -3:]
-    force_body = force_from_mount_columns(mount_block)
+    force_body = force_from_mount_columns(design[inlier][:, :, -3:])
     direction, spread = mean_direction(force_body)
     return ForceMountInformation(information=information, vector=vector, force_body=direction,
                                  spread_deg=spread, residual_rms=float(np.sqrt(np.mean(
@@ -208,7 +206,8 @@ class JointMount:
             systematic term of :func:`joint_mount` added in quadrature).
         weakest_axis: (3,) body-frame axis of the largest uncertainty, and ``weakest_std_deg``.
         rate_only_deg, force_only_deg: (3,) the rates' and the specific force's own 1-sigma
-            about the joint estimate's principal axes (weakest first), deg (inf: not seen).
+            about the joint estimate's principal axes (weakest first; conditional, the other
+            two axes held), deg, ``1 / sqrt(a^T I a)``.
         chi2, dof: the sources' disagreement (:func:`fuse_mount`); ``birge``: sqrt(chi2 / dof)
             when above 1, else 1.
         force: the specific force's information at the joint estimate.

@@ -210,6 +210,14 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     """Every quantity kfusion can observe in ``recording`` (its info's mount is ignored; a
     finite ``info.gravity`` is checked, a NaN one estimated; the clock fields are ignored).
 
+    Order: coarse clock (rate magnitudes); clock, drift, rates' mount and gyroscope bias
+    (:func:`calibrate_clock_and_mount`); the mount from rates and specific force at the
+    gyroscope's clock (:func:`joint_mount_or_none`); the accelerometer's clock at that mount
+    (:func:`accelerometer_timing`) and the joint mount again at it; gravity, lever arm and
+    accelerometer bias at the final mount and clock; noise. The mount is undetermined when the
+    clock is, or when its weakest axis's 1-sigma exceeds ``MAX_MOUNT_STD_DEG``
+    (:func:`joint_mount_undetermined` says which axis and why).
+
     Raises ValueError when the clocks cannot be correlated (no overlap, no rotation) or a
     given gravity contradicts the data.
     """
