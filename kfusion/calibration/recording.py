@@ -225,21 +225,28 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     clock_and_mount = calibrate_clock_and_mount(recording, correlation.offset)
     fit = clock_and_mount.fit
     undetermined = dict(clock_and_mount.undetermined)
-    # the mount from rates and specific force at the gyroscope's clock, to time the
-    # accelerometer with; then again at the accelerometer's clock (the one written)
+    # the accelerometer is timed at the rates' mount when the rates determine it, else at the
+    # mount from rates and specific force at the gyroscope's clock; the mount written is the
+    # joint one at the accelerometer's clock
     systematic = triad_misalignment_deg(recording.info.imu)
-    mount = joint_mount_or_none(recording, fit.offset, fit.drift_ppm, clock_and_mount,
-                                systematic_deg=systematic)
-    known = mount is not None and mount.weakest_std_deg <= MAX_MOUNT_STD_DEG
-    accelerometer = accelerometer_timing(recording, clock_and_mount,
-                                         mount.imu_to_body if mount is not None and known
-                                         else None)
+    mount: JointMount | None = None
+    if clock_and_mount.undetermined.get("imu_to_body",
+                                        CLOCK_UNDETERMINED) == CLOCK_UNDETERMINED:
+        accelerometer = accelerometer_timing(recording, clock_and_mount)
+    else:
+        mount = joint_mount_or_none(recording, fit.offset, fit.drift_ppm, clock_and_mount,
+                                    systematic_deg=systematic)
+        known = mount is not None and mount.weakest_std_deg <= MAX_MOUNT_STD_DEG
+        accelerometer = accelerometer_timing(
+            recording, clock_and_mount, mount.imu_to_body if mount is not None and known
+            else None)
     offset, drift = fit.offset, fit.drift_ppm
     if accelerometer is not None:
         offset, drift = accelerometer.offset, accelerometer.drift_ppm
         undetermined.pop("imu_time_offset", None)
         if np.isfinite(accelerometer.drift_std_ppm):
             undetermined.pop("imu_clock_drift_ppm", None)
+    if "imu_time_offset" not in undetermined and (accelerometer is not None or mount is None):
         mount = joint_mount_or_none(recording, offset, drift, clock_and_mount,
                                     start=None if mount is None else mount.imu_to_body,
                                     systematic_deg=systematic)
