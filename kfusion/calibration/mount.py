@@ -212,6 +212,7 @@ class JointMount:
             when above 1, else 1.
         force: the specific force's information at the joint estimate.
         iterations: relinearisations.
+        systematic_deg: the triad misalignment added in quadrature (:func:`joint_mount`).
     """
 
     imu_to_body: Array
@@ -226,6 +227,7 @@ class JointMount:
     birge: float
     force: ForceMountInformation
     iterations: int
+    systematic_deg: float = 0.0
 
 
 def joint_mount(recording: Recording, offset: float, drift_ppm: float,
@@ -272,4 +274,5 @@ def joint_mount(recording: Recording, offset: float, drift_ppm: float,
                       weakest_axis=axes[:, 0],
                       weakest_std_deg=float(np.hypot(np.degrees(std[0]), systematic_deg)),
                       rate_only_deg=np.degrees(rate_std), force_only_deg=np.degrees(force_std),
-                      chi2=chi2, dof=dof, birge=birge, force=force, iterations=iterations)
+                      chi2=chi2, dof=dof, birge=birge, force=force, iterations=iterations,
+                      systematic_deg=systematic_deg)

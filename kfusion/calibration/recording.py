@@ -399,9 +399,13 @@ def mount_text(mount: JointMount, rate_mount: Array, rate_residual: float) -> st
     agreement = (f"they disagree beyond their noise (chi2 {mount.chi2:.0f} for {mount.dof} "
                  f"dof): 1-sigma scaled by {mount.birge:.1f}" if mount.birge > 1.0 else
                  f"they agree (chi2 {mount.chi2:.1f} for {mount.dof} dof)")
+    systematic = (f", including {mount.systematic_deg:.2f} deg for the accelerometer's own "
+                  "axis misalignment (its profile's cross-axis figure)"
+                  if mount.systematic_deg > 0 else "")
     return (f"{np.round(mount.imu_to_body, 6).tolist()} +- "
-            f"{np.round(mount.std_deg, 3).tolist()} deg about body x, y, z, from rates and "
-            f"specific force together (rates alone: {rate_angle:.2f} deg away, rate residual "
+            f"{np.round(mount.std_deg, 3).tolist()} deg about body x, y, z{systematic}, from "
+            f"rates and specific force together (rates alone: {rate_angle:.2f} deg away, rate "
+            "residual "
             f"{rate_residual:.3f} rad/s RMS; specific-force residual "
             f"{mount.force.residual_rms:.3f} m/s^2 RMS); {agreement}")
 
