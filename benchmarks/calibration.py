@@ -24,8 +24,14 @@ import time
 import numpy as np
 import pandas as pd
 
-from kfusion.calibration import calibrate_recording, restamped, without_calibration
+from kfusion.calibration import (
+    SelfCalibration,
+    calibrate_recording,
+    restamped,
+    without_calibration,
+)
 from kfusion.calibration.evaluation import gap_rms_and_lost
+from kfusion.calibration.mount import joint_mount
 from kfusion.conventions import rotation_from_wxyz
 from kfusion.datasets import broad_trials
 from kfusion.evaluate import cut_gaps
@@ -39,6 +45,33 @@ SCENARIOS = ("random_reach", "pick_tool", "circle", "arm_lift")
 def angle_deg(first: np.ndarray, second: np.ndarray) -> float:
     return float(np.degrees((rotation_from_wxyz(first).inv()
                              * rotation_from_wxyz(second)).magnitude()))
+
+
+def mount_columns(calibration: SelfCalibration, recording: Recording, truth: np.ndarray
+                  ) -> dict:
+    """The mount's sources against the truth (deg): the rates alone, the specific force alone
+    (the joint fit with the rates' information dropped), the joint fit's largest 1-sigma and
+    its error in sigma (``sqrt(e^T C^-1 e / 3)``, about 1 when the 1-sigma is honest), and the
+    rates-against-force chi2 per degree of freedom."""
+    fit = calibration.clock_and_mount.fit
+    row = {"mount_rates_deg": angle_deg(fit.imu_to_body, truth),
+           "mount_rates_std_deg": float(np.max(fit.mount_std_deg))}
+    mount = calibration.mount
+    if mount is None:
+        return row
+    offset = (calibration.accelerometer_clock.offset if calibration.accelerometer_clock
+              else fit.offset)
+    drift = (calibration.accelerometer_clock.drift_ppm if calibration.accelerometer_clock
+             else fit.drift_ppm)
+    alone = joint_mount(recording, offset, drift, fit.imu_to_body, np.zeros((3, 3)),
+                        start=mount.imu_to_body)
+    row["mount_force_deg"] = angle_deg(alone.imu_to_body, truth)
+    error = (rotation_from_wxyz(mount.imu_to_body) * rotation_from_wxyz(truth).inv()).as_rotvec()
+    covariance = np.diag(np.radians(mount.std_deg) ** 2)  # about body x, y, z
+    row["mount_std_deg"] = float(np.max(mount.std_deg))
+    row["mount_sigmas"] = float(np.sqrt(error @ np.linalg.solve(covariance, error) / 3.0))
+    row["rates_vs_force_chi2_dof"] = mount.chi2 / max(mount.dof, 1)
+    return row
 
 
 def gap_rms_mm(recording: Recording, truth: np.ndarray, mask: np.ndarray) -> float:
@@ -62,9 +95,12 @@ def mark_targets(row: dict) -> None:
     row["missed"] = ",".join(missed) or "-"
 
 
-def simulated_rows(seeds: int, duration: float) -> list[dict]:
+def simulated_rows(seeds: int, duration: float, scenarios: tuple[str, ...] = SCENARIOS
+                   ) -> list[dict]:
     rows = []
     for number, scenario in enumerate(SCENARIOS):
+        if scenario not in scenarios:
+            continue
         for seed in range(seeds):
             # a clock, drift and lever arm of their own for every recording (one draw per seed
             # shared by all scenarios left 12 rows with 3 offsets, none beyond 0.5 s)
@@ -90,6 +126,8 @@ def simulated_rows(seeds: int, duration: float) -> list[dict]:
                    "mount_error_deg": angle_deg(info.imu_to_body,
                                                 shifted.recording.info.imu_to_body)
                    if calibration.complete else np.nan,
+                   **mount_columns(calibration, shifted.recording,
+                                   shifted.recording.info.imu_to_body),
                    "lever_error_mm": float(np.max(np.abs(info.lever_arm - lever)) * 1e3)
                    if info.lever_arm is not None else np.nan,
                    "undetermined": ",".join(sorted(calibration.undetermined)) or "-",
@@ -110,13 +148,16 @@ def simulated_rows(seeds: int, duration: float) -> list[dict]:
     return rows
 
 
-def broad_rows(trials: int | None) -> list[dict]:
+def broad_rows(trials: int | None, only: tuple[str, ...] = ()) -> list[dict]:
     rows = []
     rng = np.random.default_rng(7)
     for path in broad_trials()[:trials]:
+        offset_draw = (float(rng.uniform(-2, 2)), float(rng.uniform(-100, 100)))
+        if only and not path.stem.startswith(only):
+            continue
         original = read_broad(path, mocap_step=3)
         own = calibrate_recording(original).info
-        offset, drift = float(rng.uniform(-2, 2)), float(rng.uniform(-100, 100))
+        offset, drift = offset_draw
         shifted = restamped(original, offset, drift)
         start = time.perf_counter()
         calibration = calibrate_recording(shifted)
@@ -138,6 +179,7 @@ def broad_rows(trials: int | None) -> list[dict]:
             if "imu_clock_drift_ppm" not in calibration.undetermined else np.nan,
             "mount_vs_identity_deg": angle_deg(info.imu_to_body, original.info.imu_to_body)
             if calibration.complete else np.nan,
+            **mount_columns(calibration, shifted, original.info.imu_to_body),
             "undetermined": ",".join(sorted(calibration.undetermined)) or "-",
             "calibrate_s_per_3_min": seconds * 3.0 / minutes,
             "gap_rms_today_mm": gap_rms_mm(gapped.recording, truth, mask),
@@ -166,6 +208,10 @@ def main() -> int:
                         help="1 seed of 60 s per scenario, 2 BROAD trials")
     parser.add_argument("--only", choices=("simulated", "broad"),
                         help="run one half only (each takes about 5 minutes in full)")
+    parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=SCENARIOS,
+                        help="simulated scenarios to run (default: all)")
+    parser.add_argument("--trials", nargs="+", default=(),
+                        help="BROAD trials to run, by number prefix (e.g. 15 21; default: all)")
     args = parser.parse_args()
     seeds, duration = (1, 60.0) if args.quick else (args.seeds, args.duration)
     pd.set_option("display.width", 250)
@@ -175,12 +221,14 @@ def main() -> int:
           "<= 5 mm where observable, gap RMS after <= 1.2 x synchronised + 0.5 mm, calibrate "
           "< 10 s per 3 minutes; 'missed' lists the targets a row misses (undetermined = missed)")
     if args.only != "broad":
-        simulated = pd.DataFrame(simulated_rows(seeds, duration)).set_index("recording")
+        simulated = pd.DataFrame(simulated_rows(seeds, duration, tuple(args.scenarios))
+                                 ).set_index("recording")
         print(f"\n### simulated, {duration:.0f} s, IMU 200 Hz / mocap 100 Hz, {seeds} seed(s)\n")
         print(simulated.to_string(float_format="{:.3f}".format))
         print(summary(simulated))
     if args.only != "simulated":
-        broad = pd.DataFrame(broad_rows(2 if args.quick else None)).set_index("recording")
+        broad = pd.DataFrame(broad_rows(2 if args.quick else None, tuple(args.trials))
+                             ).set_index("recording")
         print("\n### BROAD, mocap every 3rd sample, IMU stamps shifted and scaled\n")
         print(broad.to_string(float_format="{:.3f}".format))
         print(summary(broad))

@@ -5,6 +5,7 @@
   (windows; :func:`kfusion.recording.on_mocap_clock` applies the clock model);
 * :mod:`~kfusion.calibration.rates`: mount, clock and gyroscope bias from paired angular rates;
 * :mod:`~kfusion.calibration.specific_force`: gravity, lever arm and accelerometer bias;
+* :mod:`~kfusion.calibration.mount`: the mount from rates and specific force together;
 * :mod:`~kfusion.calibration.noise`: noise densities;
 * :mod:`~kfusion.calibration.recording`: all of them on one recording (``kfusion calibrate``);
 * :mod:`~kfusion.calibration.diagnosis`: the consistency check (``kfusion check``,

@@ -17,7 +17,7 @@ moment of the body rates, ``M = mean(w w^T)``, tells (:func:`rate_spread`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Final
 
 import numpy as np
@@ -34,6 +34,7 @@ from kfusion.calibration.clock import (
     inside_imu,
     mocap_interval_rates,
 )
+from kfusion.calibration.mount import marginal_information
 from kfusion.calibration.paper import kabsch
 from kfusion.conventions import rotation_from_wxyz, wxyz_from_rotation
 from kfusion.recording import Recording
@@ -111,6 +112,10 @@ class RateFit:
             noise and gyro noise).
         rate_before_rms: the same with the identity mount, no bias and the starting clock, rad/s.
         pairs: number of rate intervals used.
+        mount_information: (3, 3) information on the mount rotation theta (rad^-2, body frame,
+            ``R = exp([theta]x) R_fit``) with offset, drift and bias marginalised
+            (:func:`kfusion.calibration.mount.marginal_information`); zero when the mount was
+            held.
     """
 
     offset: float
@@ -123,6 +128,7 @@ class RateFit:
     gyroscope_bias_std: Array
     residual_rms: float
     pairs: int
+    mount_information: Array = field(default_factory=lambda: np.zeros((3, 3)))
 
 
 def rate_residuals(pairs: RatePairs, offset: float, drift_ppm: float, R_body_imu: ArrayLike,
@@ -167,16 +173,21 @@ def fit_rates(pairs: RatePairs, offset: float, drift_ppm: float, imu_to_body: Ar
     jacobian = solution.jac[inliers]
     # overlapping intervals share their noise: each frame's noise enters `overlap` residuals,
     # so the information is `overlap` times less than the count suggests
-    covariance_free = np.linalg.pinv(jacobian.T @ jacobian) * sigma2 * pairs.overlap
+    normal = jacobian.T @ jacobian / (sigma2 * pairs.overlap)
+    covariance_free = np.linalg.pinv(normal)
     std = np.zeros(8)
     std[free] = np.sqrt(np.maximum(np.diag(covariance_free), 0.0))
+    information = np.zeros((3, 3))
+    if fit_mount:
+        target = np.searchsorted(np.flatnonzero(free), [2, 3, 4])  # theta among the free
+        information, _ = marginal_information(normal, np.zeros(len(normal)), target)
     return RateFit(offset=offset_s, offset_std=float(std[0] * 1e-3), drift_ppm=drift,
                    drift_std_ppm=float(std[1]),
                    imu_to_body=wxyz_from_rotation(Rotation.from_matrix(R)),
                    mount_std_deg=np.degrees(std[2:5]), gyroscope_bias=bias,
                    gyroscope_bias_std=std[5:8],
                    residual_rms=float(np.sqrt(np.mean(final[np.abs(final) < 3 * scale] ** 2))),
-                   pairs=len(final))
+                   pairs=len(final), mount_information=information)
 
 
 @dataclass(frozen=True)

@@ -15,11 +15,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kfusion.calibration.clock import Correlation, coarse_clock_offset
+from kfusion.calibration.mount import JointMount, joint_mount
 from kfusion.calibration.noise import NoiseEstimate, estimate_noise
 from kfusion.calibration.rates import (
     CLOCK_UNDETERMINED,
     MAX_DRIFT_STD_PPM,
+    MAX_MOUNT_STD_DEG,
     MAX_OFFSET_STD_S,
+    MIN_SECOND_AXIS,
     ClockAndMount,
     calibrate_clock_and_mount,
     mount_undetermined,
@@ -31,7 +34,8 @@ from kfusion.calibration.specific_force import (
     fit_accelerometer_offset,
     fit_specific_force,
 )
-from kfusion.conventions import GRAVITY_MAGNITUDE_RANGE
+from kfusion.conventions import GRAVITY_MAGNITUDE_RANGE, rotation_from_wxyz
+from kfusion.profiles import IMU_PROFILES
 from kfusion.recording import ImuNoise, ImuSamples, Recording, RecordingInfo
 
 Array = NDArray[np.float64]
@@ -66,6 +70,8 @@ class SelfCalibration:
         noise: noise densities.
         accelerometer_clock: the accelerometer's own timing (None when it could not be fitted
             or was not used; see :func:`accelerometer_timing`).
+        mount: the joint mount from rates and specific force (:func:`joint_mount_or_none`;
+            None when no specific-force system could be built: the rates' mount is used).
         info: the calibrated ``recording.yaml`` content; ``imu_to_body`` or ``gravity`` are NaN
             when undetermined (then it must not be written).
         undetermined: quantity -> why the motion does not determine it.
@@ -78,6 +84,7 @@ class SelfCalibration:
     info: RecordingInfo
     undetermined: dict[str, str] = field(default_factory=dict)
     accelerometer_clock: AccelerometerClock | None = None
+    mount: JointMount | None = None
 
     @property
     def imu_time_offset_std(self) -> float:
@@ -128,9 +135,14 @@ class SelfCalibration:
         else:
             line("imu_clock_drift_ppm", f"{fit.drift_ppm:+.1f} +- {fit.drift_std_ppm:.1f} ppm "
                  f"({len(self.clock_and_mount.windows.offset)} windows)")
-        std = np.round(fit.mount_std_deg, 3).tolist()
-        line("imu_to_body", f"{np.round(fit.imu_to_body, 6).tolist()} +- {std} deg about body "
-             f"x, y, z (rate residual {fit.residual_rms:.3f} rad/s RMS)")
+        mount = self.mount
+        if mount is None:
+            std = np.round(fit.mount_std_deg, 3).tolist()
+            line("imu_to_body", f"{np.round(fit.imu_to_body, 6).tolist()} +- {std} deg about "
+                 f"body x, y, z, from the rates (rate residual {fit.residual_rms:.3f} rad/s "
+                 "RMS)")
+        else:
+            line("imu_to_body", mount_text(mount, fit.imu_to_body, fit.residual_rms))
         lines.append(f"gyroscope bias: {np.round(fit.gyroscope_bias, 4).tolist()} +- "
                      f"{np.round(fit.gyroscope_bias_std, 4).tolist()} rad/s")
         force = self.specific_force
@@ -198,6 +210,14 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     """Every quantity kfusion can observe in ``recording`` (its info's mount is ignored; a
     finite ``info.gravity`` is checked, a NaN one estimated; the clock fields are ignored).
 
+    Order: coarse clock (rate magnitudes); clock, drift, rates' mount and gyroscope bias
+    (:func:`calibrate_clock_and_mount`); the mount from rates and specific force at the
+    gyroscope's clock (:func:`joint_mount_or_none`); the accelerometer's clock at that mount
+    (:func:`accelerometer_timing`) and the joint mount again at it; gravity, lever arm and
+    accelerometer bias at the final mount and clock; noise. The mount is undetermined when the
+    clock is, or when its weakest axis's 1-sigma exceeds ``MAX_MOUNT_STD_DEG``
+    (:func:`joint_mount_undetermined` says which axis and why).
+
     Raises ValueError when the clocks cannot be correlated (no overlap, no rotation) or a
     given gravity contradicts the data.
     """
@@ -205,19 +225,41 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     clock_and_mount = calibrate_clock_and_mount(recording, correlation.offset)
     fit = clock_and_mount.fit
     undetermined = dict(clock_and_mount.undetermined)
-    accelerometer = accelerometer_timing(recording, clock_and_mount)
+    # the accelerometer is timed at the rates' mount when the rates determine it, else at the
+    # mount from rates and specific force at the gyroscope's clock; the mount written is the
+    # joint one at the accelerometer's clock
+    systematic = triad_misalignment_deg(recording.info.imu)
+    mount: JointMount | None = None
+    if clock_and_mount.undetermined.get("imu_to_body",
+                                        CLOCK_UNDETERMINED) == CLOCK_UNDETERMINED:
+        accelerometer = accelerometer_timing(recording, clock_and_mount)
+    else:
+        mount = joint_mount_or_none(recording, fit.offset, fit.drift_ppm, clock_and_mount,
+                                    systematic_deg=systematic)
+        known = mount is not None and mount.weakest_std_deg <= MAX_MOUNT_STD_DEG
+        accelerometer = accelerometer_timing(
+            recording, clock_and_mount, mount.imu_to_body if mount is not None and known
+            else None)
     offset, drift = fit.offset, fit.drift_ppm
     if accelerometer is not None:
         offset, drift = accelerometer.offset, accelerometer.drift_ppm
         undetermined.pop("imu_time_offset", None)
         if np.isfinite(accelerometer.drift_std_ppm):
             undetermined.pop("imu_clock_drift_ppm", None)
-        if undetermined.get("imu_to_body") == CLOCK_UNDETERMINED:
-            del undetermined["imu_to_body"]
-            reason = mount_undetermined(clock_and_mount.principal_rates,
-                                        clock_and_mount.principal_axes, fit)
-            if reason is not None:
-                undetermined["imu_to_body"] = reason
+    if "imu_time_offset" not in undetermined and (accelerometer is not None or mount is None):
+        mount = joint_mount_or_none(recording, offset, drift, clock_and_mount,
+                                    start=None if mount is None else mount.imu_to_body,
+                                    systematic_deg=systematic)
+    if "imu_time_offset" in undetermined:
+        undetermined["imu_to_body"] = CLOCK_UNDETERMINED
+    else:
+        undetermined.pop("imu_to_body", None)
+        reason = (mount_undetermined(clock_and_mount.principal_rates,
+                                     clock_and_mount.principal_axes, fit) if mount is None
+                  else joint_mount_undetermined(mount, clock_and_mount))
+        if reason is not None:
+            undetermined["imu_to_body"] = reason
+    imu_to_body = fit.imu_to_body if mount is None else mount.imu_to_body
     # the specific force is rotated through the mount at the fitted clock: with either
     # undetermined, the fitted gravity would be an artefact of a wrong mount (a still limb's
     # Kabsch "mount" is noise), so neither check nor estimate it
@@ -226,7 +268,7 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     force: SpecificForceFit | None = None
     if prerequisite is None:
         try:
-            force = fit_specific_force(recording, offset, drift, fit.imu_to_body)
+            force = fit_specific_force(recording, offset, drift, imu_to_body)
         except ValueError:
             force = None
     gravity = _gravity(np.asarray(recording.info.gravity, dtype=float), force, undetermined,
@@ -244,9 +286,9 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     else:
         undetermined["lever_arm"] = "no visible mocap run long enough to fit it"
     noise = estimate_noise(recording.imu)
-    mount = np.full(4, np.nan) if "imu_to_body" in undetermined else fit.imu_to_body
     info = RecordingInfo(
-        imu_to_body=mount, gravity=gravity, name=recording.info.name, imu=recording.info.imu,
+        imu_to_body=np.full(4, np.nan) if "imu_to_body" in undetermined else imu_to_body,
+        gravity=gravity, name=recording.info.name, imu=recording.info.imu,
         lever_arm=lever_arm,
         imu_time_offset=0.0 if "imu_time_offset" in undetermined else offset,
         imu_clock_drift_ppm=0.0 if "imu_clock_drift_ppm" in undetermined else drift,
@@ -255,16 +297,18 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
         markers=recording.info.markers)
     return SelfCalibration(correlation=correlation, clock_and_mount=clock_and_mount,
                            specific_force=force, noise=noise, info=info,
-                           undetermined=undetermined, accelerometer_clock=accelerometer)
+                           undetermined=undetermined, accelerometer_clock=accelerometer,
+                           mount=mount)
 
 
-def accelerometer_timing(recording: Recording, clock_and_mount: ClockAndMount
-                         ) -> AccelerometerClock | None:
+def accelerometer_timing(recording: Recording, clock_and_mount: ClockAndMount,
+                         imu_to_body: Array | None = None) -> AccelerometerClock | None:
     """The accelerometer's clock offset (:func:`fit_accelerometer_offset`), started at the
     gyroscope's, when it is usable, else None.
 
-    Usable: the mount is known well enough to rotate the specific force (undetermined, if at
-    all, only because the gyroscope could not time the clock), the fit converges to within
+    Usable: the mount is known well enough to rotate the specific force (``imu_to_body``, the
+    joint mount, when given; else the rates' mount, undetermined, if at all, only because the
+    gyroscope could not time the clock), the fit converges to within
     :data:`MAX_OFFSET_STD_S` (1-sigma) and stays within :data:`ACCELEROMETER_OFFSET_RANGE_S`
     (or 3 sigma of the gyroscope's offset) of where it started. The filter dead-reckons the
     position with the accelerometer, so its timing is the one written: it is also the better
@@ -275,15 +319,18 @@ def accelerometer_timing(recording: Recording, clock_and_mount: ClockAndMount
     else fitted with the offset, and when that is not within :data:`MAX_DRIFT_STD_PPM` either,
     the offset is refitted at the gyroscope's drift (0 then: the recording's mean offset)."""
     fit = clock_and_mount.fit
-    if clock_and_mount.undetermined.get("imu_to_body", CLOCK_UNDETERMINED) != CLOCK_UNDETERMINED:
-        return None
+    if imu_to_body is None:
+        if clock_and_mount.undetermined.get("imu_to_body",
+                                            CLOCK_UNDETERMINED) != CLOCK_UNDETERMINED:
+            return None
+        imu_to_body = fit.imu_to_body
     fit_drift = "imu_clock_drift_ppm" in clock_and_mount.undetermined
     try:
         accelerometer = fit_accelerometer_offset(recording, fit.offset, fit.drift_ppm,
-                                                 fit.imu_to_body, fit_drift=fit_drift)
+                                                 imu_to_body, fit_drift=fit_drift)
         if fit_drift and not accelerometer.drift_std_ppm <= MAX_DRIFT_STD_PPM:
             accelerometer = fit_accelerometer_offset(recording, fit.offset, fit.drift_ppm,
-                                                     fit.imu_to_body)
+                                                     imu_to_body)
     except ValueError:
         return None
     reach = max(ACCELEROMETER_OFFSET_RANGE_S, 3.0 * fit.offset_std)
@@ -292,6 +339,75 @@ def accelerometer_timing(recording: Recording, clock_and_mount: ClockAndMount
             and abs(accelerometer.offset - fit.offset) <= reach):
         return None
     return accelerometer
+
+
+def triad_misalignment_deg(profile_name: str | None) -> float:
+    """deg, 1-sigma per axis of the rotation between the accelerometer's axes and the IMU's
+    nominal frame that no fit can separate from the mount: the antisymmetric part of a
+    cross-axis matrix with entries of 1-sigma ``c`` (the named profile's
+    ``accelerometer_cross_axis``), ``(C_ij - C_ji) / 2``, has 1-sigma ``c / sqrt(2)`` rad. 0
+    without a known profile."""
+    profile = IMU_PROFILES.get(profile_name or "")
+    if profile is None:
+        return 0.0
+    return float(np.degrees(profile.accelerometer_cross_axis / np.sqrt(2.0)))
+
+
+def joint_mount_or_none(recording: Recording, offset: float, drift_ppm: float,
+                        clock_and_mount: ClockAndMount, *, start: Array | None = None,
+                        systematic_deg: float = 0.0) -> JointMount | None:
+    """:func:`kfusion.calibration.mount.joint_mount` from the rate fit's mount and information,
+    or None when the specific force gives no system (no visible run long enough)."""
+    fit = clock_and_mount.fit
+    try:
+        return joint_mount(recording, offset, drift_ppm, fit.imu_to_body,
+                           fit.mount_information, start=start, systematic_deg=systematic_deg)
+    except ValueError:
+        return None
+
+
+def joint_mount_undetermined(mount: JointMount, clock_and_mount: ClockAndMount) -> str | None:
+    """Why rates and specific force together leave the mount undetermined (None when they
+    do not): the weakest axis's 1-sigma above :data:`MAX_MOUNT_STD_DEG`, with what each source
+    saw about that axis (the rates: whether the limb turned about one axis only; the specific
+    force: how far its direction moved in the body frame)."""
+    if mount.weakest_std_deg <= MAX_MOUNT_STD_DEG:
+        return None
+    principal = clock_and_mount.principal_rates
+    axis = np.round(mount.weakest_axis, 2).tolist()
+    if principal[1] < MIN_SECOND_AXIS * principal[0]:
+        turned = np.round(clock_and_mount.principal_axes[:, 0], 2).tolist()
+        rates = (f"the limb turned about one axis only (body axis {turned}, RMS "
+                 f"{principal[0]:.2f} rad/s; the next axis {principal[1]:.3f} rad/s)")
+    else:
+        rates = f"the rates alone pin it to {mount.rate_only_deg[0]:.2f} deg"
+    force = mount.force
+    direction = np.round(force.force_body, 2).tolist()
+    forces = (f"the specific force stayed near body direction {direction} (RMS "
+              f"{force.spread_deg:.1f} deg of change), which pins it to "
+              f"{mount.force_only_deg[0]:.2f} deg")
+    return (f"the mount is undetermined about body axis {axis} (1-sigma "
+            f"{mount.weakest_std_deg:.2f} deg, above {MAX_MOUNT_STD_DEG:g} deg): {rates}; "
+            f"{forces}")
+
+
+def mount_text(mount: JointMount, rate_mount: Array, rate_residual: float) -> str:
+    """The report's mount line: value, 1-sigma about body x, y, z, and how the rates' and the
+    specific force's own estimates compare."""
+    rate_angle = float(np.degrees((rotation_from_wxyz(rate_mount).inv()
+                                   * rotation_from_wxyz(mount.imu_to_body)).magnitude()))
+    agreement = (f"they disagree beyond their noise (chi2 {mount.chi2:.0f} for {mount.dof} "
+                 f"dof): 1-sigma scaled by {mount.birge:.1f}" if mount.birge > 1.0 else
+                 f"they agree (chi2 {mount.chi2:.1f} for {mount.dof} dof)")
+    systematic = (f", including {mount.systematic_deg:.2f} deg for the accelerometer's own "
+                  "axis misalignment (its profile's cross-axis figure)"
+                  if mount.systematic_deg > 0 else "")
+    return (f"{np.round(mount.imu_to_body, 6).tolist()} +- "
+            f"{np.round(mount.std_deg, 3).tolist()} deg about body x, y, z{systematic}, from "
+            f"rates and specific force together (rates alone: {rate_angle:.2f} deg away, rate "
+            "residual "
+            f"{rate_residual:.3f} rad/s RMS; specific-force residual "
+            f"{mount.force.residual_rms:.3f} m/s^2 RMS); {agreement}")
 
 
 def without_calibration(recording: Recording) -> Recording:

@@ -26,6 +26,7 @@ consistently. Edges of each visible run are trimmed where the filter rings.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Final
 
@@ -95,6 +96,34 @@ def lever_arm_matrix(angular_rate: ArrayLike, angular_acceleration: ArrayLike) -
     return np.asarray(cross_matrix(angular_acceleration) + omega @ omega)
 
 
+def mount_columns(R_global_body: ArrayLike, force_body: ArrayLike) -> Array:
+    """``R_global_body [f_body]x`` (n, 3, 3): the change of ``y = R_global_imu f - a`` per
+    small mount rotation theta (rad, body frame), ``R_body_imu <- exp([theta]x) R_body_imu``.
+
+    ``y(theta) = R_global_body exp([theta]x) f_body - a ~ y(0) + R_global_body (theta x
+    f_body)`` and ``theta x f = -f x theta = -[f]x theta``, so in ``y(0) = A x + C theta`` (the
+    model ``y(theta) = A x`` moved to the measured side) ``C = +R_global_body [f_body]x``.
+    Inputs (n, 3, 3) and (n, 3) m/s^2."""
+    return np.asarray(np.asarray(R_global_body, dtype=float) @ cross_matrix(force_body))
+
+
+ANTISYMMETRIC_PAIRS: Final = ((9, 11), (10, 13), (12, 14))
+"""Columns of the scale-error coefficients (E_xy, E_yx), (E_xz, E_zx), (E_yz, E_zy) in the
+design (:func:`scale_error_basis` after g, r, b_acc)."""
+
+
+def symmetric_scale_design(design: ArrayLike) -> Array:
+    """The design with the scale error ``E`` constrained symmetric, ``E_ji = E_ij``: each pair's
+    second column added into the first and zeroed (its coefficient is then 0 and carries no
+    information). ``E``'s antisymmetric part is a rotation of the accelerometer's axes, the same
+    as a mount rotation (``[theta]x f = theta x f``), so the two cannot both be free."""
+    constrained = np.array(design, dtype=float)
+    for first, second in ANTISYMMETRIC_PAIRS:
+        constrained[:, :, first] += constrained[:, :, second]
+        constrained[:, :, second] = 0.0
+    return constrained
+
+
 @dataclass(frozen=True)
 class SpecificForceFit:
     """Result of :func:`fit_specific_force`.
@@ -124,16 +153,24 @@ class SpecificForceFit:
     samples: int
 
 
-def _filter(values: Array, rate: float, cutoff: float) -> Array:
-    """Zero-phase 4th-order Butterworth low-pass along axis 0."""
+@functools.lru_cache(maxsize=64)
+def _butter(cutoff: float, rate: float) -> tuple[Array, Array]:
     b, a = signal.butter(4, cutoff, fs=rate)
+    return np.asarray(b), np.asarray(a)
+
+
+def _filter(values: Array, rate: float, cutoff: float) -> Array:
+    """Zero-phase 4th-order Butterworth low-pass along axis 0 (the rate rounded to 1e-6 Hz,
+    so the coefficients of a recording's runs are designed once)."""
+    b, a = _butter(float(cutoff), round(float(rate), 6))
     return np.asarray(signal.filtfilt(b, a, values, axis=0))
 
 
 def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
                           imu_to_body: ArrayLike, *, cutoff_hz: float = CUTOFF_HZ,
                           time_shift: bool = False, drift_shift: bool = False,
-                          reference_time: float = 0.0) -> tuple[Array, Array]:
+                          reference_time: float = 0.0, mount_shift: bool = False
+                          ) -> tuple[Array, Array]:
     """The filtered linear system ``y (k, 3) = A (k, 3, 18) x`` of the module docstring, over
     every visible mocap run of at least :data:`MIN_RUN_S` inside the IMU's span.
 
@@ -147,7 +184,14 @@ def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
 
     with ``delta_m = delta_c + tau_ref delta_d 1e-6`` the correction at ``tau_ref =
     reference_time`` (IMU clock, s; the recording's middle keeps the two columns apart)
-    (:func:`fit_accelerometer_offset`)."""
+    (:func:`fit_accelerometer_offset`).
+
+    With ``mount_shift`` A has 3 more columns, last, for a small rotation ``theta`` (rad, body
+    frame) of the mount, ``R_body_imu <- exp([theta]x) R_body_imu``: to first order
+    ``R_global_imu f <- R_global_imu f + R_global_body (theta x f_body)``, so with
+    ``f_body = R_body_imu f`` the columns are :func:`mount_columns` (and the antisymmetric
+    part of the scale error ``E``, which is the same rotation, must then be held at 0:
+    :func:`symmetric_scale_design`)."""
     imu, mocap = recording.imu, recording.mocap
     R_body_imu = matrix_from_wxyz(imu_to_body)
     angular_acceleration = np.gradient(imu.gyroscope, imu.t, axis=0)
@@ -185,6 +229,8 @@ def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
             blocks.append(shift)
             if drift_shift:
                 blocks.append(shift * ((tau - reference_time) * 1e-6)[:, None, None])
+        if mount_shift:
+            blocks.append(mount_columns(R_global_body, force @ R_body_imu.T))
         design = np.concatenate(blocks, axis=2)
         # filter the IMU side like the mocap side (the acceleration is already filtered)
         y = _filter(y + acceleration, rate, cutoff_hz) - acceleration
@@ -213,7 +259,36 @@ def solve_specific_force(y: Array, design: Array, *, fit_bias: bool = True,
     columns = len(used)
     A = design[:, :, used].reshape(-1, columns)
     b = y.reshape(-1)
-    solution, *_ = np.linalg.lstsq(A, b, rcond=None)
+    solution, inlier = robust_least_squares(A, b)
+    rows = np.repeat(inlier, 3)
+    A, b = A[rows], b[rows]
+    residual = b - A @ solution
+    sigma2 = float(residual @ residual) / max(len(b) - columns, 1)
+    covariance = np.linalg.pinv(A.T @ A) * sigma2 * correlation
+    x = np.zeros(unknowns)
+    full = np.full((unknowns, unknowns), np.nan)
+    x[used] = solution
+    full[np.ix_(used, used)] = covariance
+    return x, full, residual.reshape(-1, 3)
+
+
+def normal_least_squares(A: Array, b: Array) -> Array:
+    """Least squares of ``b = A x`` (A (n, m)) by the normal equations on unit-norm columns:
+    ``x = D^-1 (A_s^T A_s)^+ A_s^T b`` with ``A_s = A D^-1``, D the column norms (1 for a zero
+    column, whose coefficient is then 0). Five times faster than an SVD on the tall systems
+    here; directions whose singular value is below 1e-6 of the largest count as unseen."""
+    norms = np.linalg.norm(A, axis=0)
+    norms = np.where(norms > 0.0, norms, 1.0)
+    scaled = A / norms
+    return np.asarray(np.linalg.pinv(scaled.T @ scaled, rcond=1e-12, hermitian=True)
+                      @ (scaled.T @ b) / norms, dtype=float)
+
+
+def robust_least_squares(A: Array, b: Array) -> tuple[Array, NDArray[np.bool_]]:
+    """Least squares of ``b (3k,) = A (3k, m) x`` (:func:`normal_least_squares`) with the
+    outlier rejection of :func:`solve_specific_force`; returns (x (m,), inlier (k,) per
+    3-axis sample)."""
+    solution = normal_least_squares(A, b)
     # outlier rejection, repeated until the inliers settle: samples whose misfit exceeds
     # OUTLIER_FACTOR times the median (a mocap glitch or marker swap, a tap on the IMU, spread
     # by the filter) are dropped and the fit repeated. One pass is not enough when the
@@ -228,17 +303,8 @@ def solve_specific_force(y: Array, design: Array, *, fit_bias: bool = True,
             break
         inlier = updated
         rows = np.repeat(inlier, 3)
-        solution, *_ = np.linalg.lstsq(A_all[rows], b_all[rows], rcond=None)
-    rows = np.repeat(inlier, 3)
-    A, b = A_all[rows], b_all[rows]
-    residual = b - A @ solution
-    sigma2 = float(residual @ residual) / max(len(b) - columns, 1)
-    covariance = np.linalg.pinv(A.T @ A) * sigma2 * correlation
-    x = np.zeros(unknowns)
-    full = np.full((unknowns, unknowns), np.nan)
-    x[used] = solution
-    full[np.ix_(used, used)] = covariance
-    return x, full, residual.reshape(-1, 3)
+        solution = normal_least_squares(A_all[rows], b_all[rows])
+    return np.asarray(solution, dtype=float), inlier
 
 
 def measured_gravity(x: Array, covariance: Array) -> tuple[Array, Array]:
