@@ -255,7 +255,12 @@ class MonitorParameters:
         horizon_edges_s: upper edges of the horizon bins, s, increasing.
         holdout_edges_s: the same for the smoother's hold-out gaps (distance to the nearest
             fix; the smoother's error varies faster with it than the filter's).
-        memory: shadow-gap rows remembered per bin (about 5-10 per gap and bin at 100 Hz).
+        memory: shadow-gap rows remembered per bin (about 5-10 per gap and bin at 100 Hz:
+            2000 rows are the last 200-400 gaps, 2-4 minutes). Long enough that the evidence
+            spans the recording's fast and slow parts (with 400, a gap in fast motion after a
+            quiet spell got the quiet spell's scale: BROAD kalman coverage 0.965-0.973 on the
+            fast trials, 0.971-0.982 with 2000); a model that gets worse still shows within
+            ``(1 - matching_quantile) memory`` = 10 rows, one or two shadow gaps.
         confidence: the bound the scale is matched at (chi-square quantile of the radius).
         matching_quantile: quantile of the rows' required scales that the scale matches: a
             little above ``confidence``, since the next gap is not one of the shadow gaps.
@@ -275,7 +280,7 @@ class MonitorParameters:
     shadow_period_s: float = 0.6
     horizon_edges_s: tuple[float, ...] = (0.02, 0.04, 0.06, 0.08, 0.1, 0.15, 0.2, 0.3)
     holdout_edges_s: tuple[float, ...] = (0.02, 0.04, 0.06, 0.08, 0.1, 0.15, 0.2, 0.3, 0.5)
-    memory: int = 400
+    memory: int = 2000
     confidence: float = 0.99
     matching_quantile: float = 0.995
     minimum_shadow_gaps: int = 10

@@ -150,6 +150,7 @@ _ORIENTATION_MIN_ANGLE = streamhealth.ORIENTATION_GATE_MIN_ANGLE
 _NOISE_QUANTILE = model.NOISE_CHANGE_QUANTILE
 _LOW_PASS_TAU = model.LOW_PASS_TIME_CONSTANT
 _SCALE_COHERENCE = model.SCALE_ERROR_COHERENCE_S
+_motion_acceleration_variance = njit(cache=True)(model.motion_acceleration_variance)
 _SATURATION_FRACTION = model.SATURATION_FRACTION
 _IMPLAUSIBLE = model.IMPLAUSIBLE_SAMPLE
 
@@ -544,7 +545,9 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
             noise_variance = config[C_ACC_DENSITY] ** 2 / dt
             acceleration_variance = scalars[ACCELEROMETER_EXTRA] + max(
                 squared_distance(f0, f1) - 2.0 * _NOISE_QUANTILE * noise_variance,
-                0.0) / 36.0
+                0.0) / 36.0 + _motion_acceleration_variance(
+                    squared_distance(f1, scalars[LOW_PASS:LOW_PASS + 3]), dt, scale,
+                    _LOW_PASS_TAU)
             F, B = interval_matrices(R0, R1, dt, n, config)
             u = np.empty(9)
             u[0:3] = f0

@@ -77,9 +77,10 @@ the gate and give the position, and the gap after it is ``lost``, never dead-rec
 Honest covariance on real sensors (each term derived in :mod:`kfusion.kalman.model`): besides the
 profile's white noise and bias walk, the bias state absorbs the orientation error grown through a
 gap (:func:`~kfusion.kalman.model.orientation_leak_variance`) and the accelerometer's scale and
-cross-axis error (:func:`~kfusion.kalman.model.scale_error_variance`), and sample-to-sample jumps
-beyond the noise (impacts) count as acceleration noise
-(:func:`~kfusion.kalman.model.interpolation_variance`). A propagation that overflows (an
+cross-axis error (:func:`~kfusion.kalman.model.scale_error_variance`); the fast part of that
+error, which the bias cannot follow, and sample-to-sample jumps beyond the noise (impacts) count
+as acceleration noise (:func:`~kfusion.kalman.model.motion_acceleration_variance`,
+:func:`~kfusion.kalman.model.interpolation_variance`). A propagation that overflows (an
 absurd interval) forgets the state (``resets``): the output is ``lost`` until the next fix.
 """
 
@@ -796,7 +797,11 @@ class KalmanFusion:
                 acceleration_variance = (self._accelerometer_extra_variance
                                          + model.interpolation_variance(
                                              _squared_distance(f0, f1),
-                                             params.accelerometer_noise_density ** 2 / dt))
+                                             params.accelerometer_noise_density ** 2 / dt)
+                                         + model.motion_acceleration_variance(
+                                             _squared_distance(f1, low_pass), dt,
+                                             params.accelerometer_scale_error,
+                                             model.LOW_PASS_TIME_CONSTANT))
                 F, B = self._F, self._B
                 model.fill_interval(F, B, R0, R1, dt)
                 model.control_input(f0, f1, self._gravity, out=self._u)

@@ -167,6 +167,11 @@ class _Reference:
                      * SCALE_ERROR_COHERENCE_S / dt)
         white = params.accelerometer_noise_density ** 2 / dt  # per-sample noise variance
         held = self.f_extra + max((f1 - f0) @ (f1 - f0) - 2 * 11.3448667 * white, 0.0) / 36.0
+        # the scale error's fast part S (f - f_lp), correlated over the low-pass time constant
+        assert self.low_pass is not None
+        fast = f1 - self.low_pass
+        held += (params.accelerometer_scale_error ** 2 * (fast @ fast)
+                 * LOW_PASS_TIME_CONSTANT / dt)
         Q = np.zeros((self.n, self.n))
         Q[POSITION, POSITION] = (white * dt ** 4 + held * dt ** 4 / 4) * np.eye(3)
         Q[POSITION, VELOCITY] = Q[VELOCITY, POSITION] = (
