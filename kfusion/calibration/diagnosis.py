@@ -4,6 +4,8 @@ Run on the recording as its ``recording.yaml`` describes it (clock model applied
 self-calibration's estimators (:mod:`kfusion.calibration`), in this order, stopping at the first
 mistake found (later tests assume the earlier ones passed):
 
+0. markers: with ``markers.csv`` and ``markers:``, each marker where ``recording.yaml`` puts it
+   on ``mocap.csv``'s rigid body (:func:`kfusion.calibration.marker_fit.marker_problem`);
 1. time units: one stream's time span about 1000 times the other's (ms instead of s);
 2. time overlap of the IMU and the mocap;
 3. quaternion order: the rate-magnitude correlation is much better with the mocap quaternion
@@ -43,6 +45,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from kfusion.calibration.clock import Correlation, coarse_clock_offset
+from kfusion.calibration.marker_fit import marker_problem
 from kfusion.calibration.rates import (
     MAX_OFFSET_STD_S,
     MIN_ROTATION_RATE,
@@ -337,6 +340,9 @@ def diagnose(recording: Recording, *, imu_latency_s: float = 0.0) -> Diagnosis:
     info), with the IMU's events ``imu_latency_s`` (s) earlier than its mapped stamps, as the
     filter takes them (:func:`kfusion.kalman.events.imu_event_time`)."""
     notes: list[str] = []
+    markers = marker_problem(recording)
+    if markers:
+        return Diagnosis([markers])
     unit = time_unit_problem(recording)
     if unit:
         return Diagnosis([unit])
@@ -345,6 +351,9 @@ def diagnose(recording: Recording, *, imu_latency_s: float = 0.0) -> Diagnosis:
         samples = recording.imu
         recording = dataclasses.replace(recording, imu=ImuSamples(
             samples.t - imu_latency_s, samples.accelerometer, samples.gyroscope))
+    if not recording.mocap.visible.any():
+        return Diagnosis(["mocap.csv has no visible (solved) frame: every row is empty or "
+                          "occluded, so nothing can be tracked or checked"])
     overlap = overlap_seconds(recording)
     if overlap <= 1.0:
         imu, mocap = recording.imu.t, recording.mocap.t
