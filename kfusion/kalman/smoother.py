@@ -180,19 +180,21 @@ def initialised_segments(outcome: NDArray[np.str_], initialised: NDArray[np.bool
 
 
 def smoother_status(t: NDArray[np.float64], fixed: NDArray[np.bool_], max_bridge_s: float,
-                    dead_reckoned: NDArray[np.bool_] | None = None) -> NDArray[np.str_]:
+                    dead_reckoned: NDArray[np.bool_] | None = None, *,
+                    engine: str = "filterpy") -> NDArray[np.str_]:
     """Smoother status per row: the status rule (:func:`kfusion.streamhealth.tracking_status`)
     with the distance to the nearest used fix either side as the time since the fix (the
     smoother has the fixes after a row too): ``tracked`` at used fixes; ``lost`` before the
     first fix (the forward pass had no state there) and in a gap the IMU did not cover (not
     ``dead_reckoned``; None: every row is); in a gap between fixes ``bridged`` where the
     nearest fix is at most ``max_bridge_s`` away (else ``lost``); after the last fix
-    ``bridged`` up to ``max_bridge_s`` after it, then ``lost``."""
+    ``bridged`` up to ``max_bridge_s`` after it, then ``lost``. ``engine``: that of
+    :func:`kfusion.kalman.batch.row_statuses`."""
     t = np.asarray(t, dtype=float)
     fixed = np.asarray(fixed, dtype=bool)
     last = np.maximum.accumulate(np.where(fixed, t, -np.inf))
     distance = np.where(np.isfinite(last), nearest_fix_distance(t, fixed), np.inf)
-    return row_statuses(distance, fixed, max_bridge_s, dead_reckoned)
+    return row_statuses(distance, fixed, max_bridge_s, dead_reckoned, engine=engine)
 
 
 def nearest_fix_distance(t: NDArray[np.float64], fixed: NDArray[np.bool_]
@@ -332,10 +334,13 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
             P_predicted[first:stop], transitions[first:stop])
     t = np.array(recording.mocap.t)
     fixed = recorder.fixed
+    status_engine = "compiled" if rows is not None else "filterpy"
     filtered_status, since = status_from_fixes(t, fixed, recorder.initialised,
-                                               params.max_bridge_s, recorder.dead_reckoned)
+                                               params.max_bridge_s, recorder.dead_reckoned,
+                                               engine=status_engine)
     # a gap the IMU did not cover (the forward pass's no-IMU rows) is lost for the smoother too
-    smoothed_status = smoother_status(t, fixed, params.max_bridge_s, recorder.dead_reckoned)
+    smoothed_status = smoother_status(t, fixed, params.max_bridge_s, recorder.dead_reckoned,
+                                      engine=status_engine)
 
     position, variance = (compiled_points(recorder) if rows is not None else
                           point_estimates(x_filtered, P_filtered, recorder.output_matrix,
