@@ -365,8 +365,8 @@ def structured_predict(x, P, dt, blocks, control, pp, pv, vv, bb, config, work, 
     with ``c`` the control term ``B u`` (:func:`control_term`: position and velocity rows)
     and Q's nonzero entries per axis ``Q_pp, Q_pv, Q_vv, Q_bb`` (:func:`process_noise`).
     ``work`` (2, n, n) scratch; ``interval`` (n, n) becomes ``F interval`` unless empty.
-    Allocation-free: the compiled engine's hot path (equal to :func:`covariance_predict` with those F, B u, Q up to the sign
-    of exact zeros)."""
+    Allocation-free: the compiled engine's hot path (equal to :func:`covariance_predict` with
+    those F, B u, Q up to the sign of exact zeros)."""
     p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
     n = x.shape[0]
     for i in range(3):
