@@ -284,4 +284,4 @@ def test_merge_order_is_the_sorted_event_keys():
                      for index, t in enumerate(mocap_t.tolist())]
         expected.sort(key=lambda event: (event[0], event[1]))
         times, stream, index = merge_order(imu_t, mocap_t, latency)
-        assert list(zip(times.tolist(), stream.tolist(), index.tolist())) == expected
+        assert list(zip(times.tolist(), stream.tolist(), index.tolist(), strict=True)) == expected
