@@ -1016,6 +1016,49 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
     return kind, nis, True
 
 
+def packed_size(n: int) -> int:
+    """Length of a packed filter state with n states (:func:`state_views`)."""
+    return n + n * n + 15 + SCALAR_COUNT + n + n * n
+
+
+@njit(cache=True)
+def state_views(state, n):
+    """Views ``(x (n,), P (n, n), orientation (15,), scalars, prior_x (n,), prior_P (n, n))``
+    into one packed state array (:func:`packed_size`): one argument per kernel call (numba
+    unboxes each array argument on every call) and one copy per snapshot."""
+    P_end = n + n * n
+    orientation_end = P_end + 15
+    scalars_end = orientation_end + SCALAR_COUNT
+    return (state[0:n], state[n:P_end].reshape((n, n)), state[P_end:orientation_end],
+            state[orientation_end:scalars_end], state[scalars_end:scalars_end + n],
+            state[scalars_end + n:scalars_end + n + n * n].reshape((n, n)))
+
+
+@njit(cache=True)
+def packed_predict(stamp, a0, a1, a2, g0, g1, g2, state, config, counters, n):
+    """:func:`predict_step` on a packed state (:func:`state_views`) for a sample its caller
+    validated (finite, stamp after the last: :meth:`kfusion.kalman.compiled_fusion.
+    CompiledFusion.predict`); the sample as six floats."""
+    x, P, orientation, scalars, _, _ = state_views(state, n)
+    f = np.empty(3)
+    omega = np.empty(3)
+    f[0], f[1], f[2] = a0, a1, a2
+    omega[0], omega[1], omega[2] = g0, g1, g2
+    predict_step(stamp, f, omega, x, P, orientation, scalars, config, counters,
+                 np.zeros((0, 0)))
+
+
+@njit(cache=True)
+def packed_update(t, visible, z, q_global_body, has_quaternion, state, config, counters, n):
+    """:func:`update_step` on a packed state (:func:`state_views`); returns (outcome code,
+    NIS)."""
+    x, P, orientation, scalars, prior_x, prior_P = state_views(state, n)
+    kind, nis, _ = update_step(t, visible, z, q_global_body, has_quaternion, x, P,
+                               orientation, scalars, config, counters, np.zeros((0, 0)),
+                               prior_x, prior_P)
+    return kind, nis
+
+
 @njit(cache=True)
 def filter_events(stream, index, imu_t, accelerometer, gyroscope, imu_finite, mocap_t,
                   mocap_position, mocap_quaternion, visible, config, size, out_x, out_P,
