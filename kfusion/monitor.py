@@ -498,6 +498,8 @@ class ConsistencyMonitor:
     def _close(self) -> None:
         """End the running shadow gap and keep its evidence."""
         if self._rows_h:
+            # a new HorizonScales, never the one a snapshot may share (_copy_state)
+            self._scales = self._scales.copy()
             self._scales.add_gap(self._rows_h, self._rows_scale)
             self._accelerations.append(fit_acceleration_error(self._rows_h,
                                                               np.array(self._rows_error)))
@@ -596,17 +598,17 @@ class ConsistencyMonitor:
 
 
 def _copy_state(state: dict[str, object]) -> dict[str, object]:
-    """A copy of the monitor's state dict that shares nothing mutable with it: deques, lists
-    and :class:`HorizonScales` are copied; floats, tuples and the arrays the monitor stores
-    (each built new and never changed in place) are shared. It stands for ``copy.deepcopy``,
-    which took about 0.7 ms per snapshot (the Tracker takes one at mocap rate)."""
+    """A copy of the monitor's state dict that shares nothing mutable with it: deques and lists
+    are copied; floats, tuples, the arrays the monitor stores (each built new and never changed
+    in place) and the :class:`HorizonScales` (replaced by a changed copy, never changed in
+    place: :meth:`ConsistencyMonitor._close`) are shared. It stands for ``copy.deepcopy``,
+    which took about 0.7 ms per snapshot (the Tracker takes one at mocap rate); copying the
+    scales' rows too took most of the 10-20 µs a snapshot still cost."""
     copied: dict[str, object] = {}
     for key, value in state.items():
         if isinstance(value, deque):
             value = deque(value, maxlen=value.maxlen)
         elif isinstance(value, list):
             value = list(value)
-        elif isinstance(value, HorizonScales):
-            value = value.copy()
         copied[key] = value
     return copied

@@ -111,15 +111,22 @@ class CompiledFusion:
 
     def predict(self, t: float, accelerometer: ArrayLike, gyroscope: ArrayLike) -> str:
         """:meth:`KalmanFusion.predict` (same checks, outcomes and errors)."""
-        t, f, omega, finite = checked_sample(t, accelerometer, gyroscope)
+        f_values, omega_values = _three_floats(accelerometer), _three_floats(gyroscope)
+        if type(t) is float and math.isfinite(t) and f_values is not None \
+                and omega_values is not None:  # the common types, checked cheaply
+            values = f_values + omega_values
+            finite = all(map(math.isfinite, values))
+        else:  # every other input: the full checks and their messages
+            t, f, omega, finite = checked_sample(t, accelerometer, gyroscope)
+            values = f.tolist() + omega.tolist()
         if not finite:
             self._counters[_IMU_REJECTED] += 1
             return REJECTED
-        a0, a1, a2 = f.tolist()
-        g0, g1, g2 = omega.tolist()
-        stamp = self._scalars[compiled.IMU_STAMP]
+        a0, a1, a2, g0, g1, g2 = values
+        stamp = float(self._scalars[compiled.IMU_STAMP])
         if not math.isnan(stamp) and t <= stamp:
             held = self._scalars
+            f, omega = np.array(values[:3]), np.array(values[3:])
             if (t == stamp and np.array_equal(
                     np.clip(f, -self._accelerometer_range, self._accelerometer_range),
                     held[compiled.ACCELEROMETER:compiled.ACCELEROMETER + 3])
@@ -218,6 +225,21 @@ class CompiledFusion:
 _IMU_REJECTED: Final = compiled.COUNTER_INDEX["imu_rejected"]
 _IMU_DUPLICATES: Final = compiled.COUNTER_INDEX["imu_duplicates"]
 _NO_POSITION: Final = np.zeros(3)  # read by no kernel: an occluded frame's z
+
+
+def _three_floats(value: object) -> list[float] | None:
+    """``value``'s entries as floats when it is a float64 array of shape (3,) or a tuple or list
+    of 3 floats (what the Tracker, the monitor and the batch driver pass), else None (the caller
+    then runs the full checks)."""
+    kind = type(value)
+    if kind is np.ndarray:
+        array: NDArray[np.float64] = value  # type: ignore[assignment]
+        return array.tolist() if array.dtype == np.float64 and array.shape == (3,) else None
+    if kind is tuple or kind is list:
+        items: Any = value
+        if len(items) == 3 and all(type(item) is float for item in items):
+            return list(items)
+    return None
 
 
 def _optional(value: Any) -> float | None:
