@@ -345,3 +345,24 @@ def test_status_codes_follow_the_status_rule() -> None:
         np.testing.assert_array_equal(
             row_statuses(since, fused, 0.3, dead_reckoned, engine="compiled"),
             row_statuses(since, fused, 0.3, dead_reckoned))
+
+
+@pytest.mark.parametrize("case", ["gaps_lever_arm_states", "gated_and_reacquired", "reset"])
+def test_smoother_recomputes_the_same_bits_from_saved_states(case: str,
+                                                            monkeypatch: pytest.MonkeyPatch
+                                                            ) -> None:
+    """The compiled backward pass runs the forward loop again block by block from saved states
+    instead of keeping each row's prediction: blocks of 7 rows (many boundaries, inside and
+    across segments) give the bits of one block holding the whole recording."""
+    from kfusion.kalman import run_smoother
+
+    build, overrides = CASES[case]
+    recording = build()
+    monkeypatch.setattr(compiled, "SAVE_EVERY", len(recording.mocap) + 1)
+    whole = run_smoother(recording, monitor=None, engine="compiled", **overrides)
+    monkeypatch.setattr(compiled, "SAVE_EVERY", 7)
+    blocks = run_smoother(recording, monitor=None, engine="compiled", **overrides)
+    assert np.isfinite(whole.x).any(axis=1).sum() > 100
+    np.testing.assert_array_equal(blocks.x, whole.x)
+    np.testing.assert_array_equal(blocks.P, whole.P)
+    np.testing.assert_array_equal(blocks.result.position, whole.result.position)

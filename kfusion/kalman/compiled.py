@@ -1059,34 +1059,40 @@ def packed_update(t, visible, z, q_global_body, has_quaternion, state, config, c
     return kind, nis
 
 
-@njit(cache=True)
-def filter_events(stream, index, imu_t, accelerometer, gyroscope, imu_finite, mocap_t,
-                  mocap_position, mocap_quaternion, visible, config, size, out_x, out_P,
-                  out_H, out_offset, out_outcome, out_nis, out_dead_reckoned, counters,
-                  out_x_predicted, out_P_predicted, out_transition):
-    """The whole batch loop over a recording's merged events (stream 0 IMU, 1 mocap; index
-    its row). Fills one row of the outputs per mocap row. Returns -1, or the event number
-    the kernel cannot handle (a non-increasing stamp that is not an identical duplicate):
-    the caller then runs the filterpy engine, whose error message names it.
+def initial_state(n: int) -> NDArray[np.float64]:
+    """A new filter's packed state (:func:`state_views`): x = 0, P = I, orientation and
+    scalars as :func:`initial_orientation`, :func:`initial_scalars`."""
+    state = np.zeros(packed_size(n))
+    x, P, orientation, scalars, _, _ = state_views(state, n)
+    P[:, :] = np.eye(n)
+    orientation[:] = initial_orientation()
+    scalars[:] = initial_scalars()
+    return state
 
-For the smoother (``out_transition`` with m rows; empty (0, n, n) arrays otherwise) it also
+
+@njit(cache=True)
+def filter_events(stream, index, begin, end, imu_t, accelerometer, gyroscope, imu_finite,
+                  mocap_t, mocap_position, mocap_quaternion, visible, config, state, counters,
+                  row_offset, out_x, out_P, out_H, out_offset, out_outcome, out_nis,
+                  out_dead_reckoned, out_x_predicted, out_P_predicted, out_transition,
+                  save_every, saved_states, saved_events):
+    """The batch loop over merged events ``begin`` to ``end`` - 1 (stream 0 IMU, 1 mocap; index
+    its row) from the packed ``state`` (:func:`state_views`, updated in place). Fills one row
+    of the outputs per mocap row (row ``r`` at ``r - row_offset``). Returns -1, or the event
+    number the kernel cannot handle (a non-increasing stamp that is not an identical
+    duplicate): the caller then runs the filterpy engine, whose error message names it.
+
+For the smoother (``out_transition`` with rows; empty (0, n, n) arrays otherwise) it also
 keeps per row the prediction the row's fix was fused into (the filtered state where none
-was) and the product of the transitions since the previous row."""
-    x = np.zeros(size)
-    P = np.eye(size)
-    orientation = np.zeros(15)
-    orientation[0] = 1.0
-    scalars = np.full(SCALAR_COUNT, math.nan)
-    scalars[ACCELEROMETER_EXTRA] = 0.0
-    scalars[GYROSCOPE_EXTRA] = 0.0
-    scalars[INITIALISED_FLAG] = 0.0
-    scalars[LAST_FRAME_FUSED] = 0.0
-    scalars[OUTAGE_SINCE_FIX] = 0.0
+was) and the product of the transitions since the previous row. With ``save_every`` > 0 it
+saves the state after every ``save_every``-th row (rows ``save_every - 1``, ``2 save_every -
+1``, ...) in ``saved_states`` and the next event in ``saved_events``: the smoother's backward
+pass runs the loop again from there (:func:`smooth_rows`)."""
+    size = out_x.shape[1]
+    x, P, orientation, scalars, prior_x, prior_P = state_views(state, size)
     smoothing = out_transition.shape[0] > 0
     interval = np.eye(size) if smoothing else np.zeros((0, 0))
-    prior_x = np.zeros(size)
-    prior_P = np.zeros((size, size))
-    for event in range(stream.shape[0]):
+    for event in range(begin, end):
         row = index[event]
         if stream[event] == 0:
             stamp = imu_t[row]
@@ -1114,23 +1120,95 @@ was) and the product of the transitions since the previous row."""
                                        mocap_quaternion[row], True, x, P, orientation,
                                        scalars, config, counters, interval, prior_x,
                                        prior_P)
-        out_outcome[row] = kind
-        out_nis[row] = nis
-        out_dead_reckoned[row] = t <= dead_reckoning_until(scalars, config)
+        out = row - row_offset
+        out_outcome[out] = kind
+        out_nis[out] = nis
+        out_dead_reckoned[out] = t <= dead_reckoning_until(scalars, config)
         if scalars[INITIALISED_FLAG] != 0.0:
-            out_x[row] = x
-            out_P[row] = P
+            out_x[out] = x
+            out_P[out] = P
             H, offset = output_map(orientation[0:4].copy(), size, config)
-            out_H[row] = H
-            out_offset[row] = offset
+            out_H[out] = H
+            out_offset[out] = offset
             if smoothing:
-                out_x_predicted[row] = prior_x if fused else x
-                out_P_predicted[row] = prior_P if fused else P
-                out_transition[row] = interval
+                out_x_predicted[out] = prior_x if fused else x
+                out_P_predicted[out] = prior_P if fused else P
+                out_transition[out] = interval
         if smoothing:
             interval[:, :] = np.eye(size)
+        if save_every > 0 and (row + 1) % save_every == 0:
+            saved_states[(row + 1) // save_every - 1] = state
+            saved_events[(row + 1) // save_every - 1] = event + 1
     return -1
 
+
+@njit(cache=True)
+def rts_step(x_filtered, P_filtered, x_next, P_next, x_predicted, P_predicted, transition):
+    """One RTS backward step (:func:`kfusion.kalman.smoother.rts_backward`)::
+
+        C_k   = P_k Phi_{k+1}^T P_{k+1|k}^-1    (solved: C^T = P_{k+1|k}^-1 Phi P_k)
+        x_k^s = x_k + C_k (x_{k+1}^s - x_{k+1|k})
+        P_k^s = P_k + C_k (P_{k+1}^s - P_{k+1|k}) C_k^T,  symmetrised
+    Returns (x_k^s, P_k^s)."""
+    C = np.linalg.solve(P_predicted, matmul(transition, P_filtered)).T.copy()
+    x = x_filtered + matvec(C, x_next - x_predicted)
+    P = P_filtered + matmul(matmul(C, P_next - P_predicted), C.T.copy())
+    return x, 0.5 * (P + P.T)
+
+
+@njit(cache=True)
+def smooth_rows(stream, index, row_event, imu_t, accelerometer, gyroscope, imu_finite,
+                mocap_t, mocap_position, mocap_quaternion, visible, config, first_state,
+                save_every, saved_states, saved_events, segment, x_filtered, P_filtered,
+                x_smoothed, P_smoothed, counters):
+    """The RTS backward pass (:func:`rts_step`) over rows m-1..0 without the forward pass's
+    per-row predictions and transitions: blocks of ``save_every`` rows, last block first, run
+    the forward loop again (:func:`filter_events`, the same arithmetic: the same bits) from
+    the state saved before the block (``first_state`` for the first block) to get them. Row k
+    is smoothed from row k+1 where both are in one ``segment`` (m,) (-1: no state, left NaN);
+    the last row of a segment keeps its filtered state. ``row_event`` (m,): each row's event.
+    Fills ``x_smoothed`` (m, n), ``P_smoothed`` (m, n, n); ``counters``: scratch."""
+    m, n = x_filtered.shape
+    x_predicted = np.full((save_every, n), math.nan)
+    P_predicted = np.full((save_every, n, n), math.nan)
+    transitions = np.full((save_every, n, n), math.nan)
+    scratch_x = np.empty((save_every, n))
+    scratch_P = np.empty((save_every, n, n))
+    scratch_H = np.empty((save_every, 3, n))
+    scratch_offset = np.empty((save_every, 3))
+    scratch_outcome = np.empty(save_every, dtype=np.int64)
+    scratch_nis = np.empty(save_every)
+    scratch_dead_reckoned = np.empty(save_every, dtype=np.bool_)
+    no_states = np.zeros((0, 0))
+    no_events = np.zeros(0, dtype=np.int64)
+    for k in range(m):
+        if segment[k] >= 0 and (k + 1 == m or segment[k + 1] != segment[k]):
+            x_smoothed[k] = x_filtered[k]
+            P_smoothed[k] = P_filtered[k]
+    blocks = (m + save_every - 1) // save_every
+    for block in range(blocks - 1, -1, -1):
+        first_row = block * save_every
+        last_row = min(m, first_row + save_every) - 1
+        if block == 0:
+            state = first_state.copy()
+            begin = 0
+        else:
+            state = saved_states[block - 1].copy()
+            begin = saved_events[block - 1]
+        x_predicted[:] = math.nan
+        filter_events(stream, index, begin, row_event[last_row] + 1, imu_t, accelerometer,
+                      gyroscope, imu_finite, mocap_t, mocap_position, mocap_quaternion,
+                      visible, config, state, counters, first_row, scratch_x, scratch_P,
+                      scratch_H, scratch_offset, scratch_outcome, scratch_nis,
+                      scratch_dead_reckoned, x_predicted, P_predicted, transitions, 0,
+                      no_states, no_events)
+        for k in range(last_row - 1, first_row - 2, -1):
+            if k < 0 or segment[k] < 0 or segment[k + 1] != segment[k]:
+                continue
+            j = k + 1 - first_row
+            x_smoothed[k], P_smoothed[k] = rts_step(
+                x_filtered[k], P_filtered[k], x_smoothed[k + 1], P_smoothed[k + 1],
+                x_predicted[j], P_predicted[j], transitions[j])
 
 
 @njit(cache=True)
@@ -1188,26 +1266,6 @@ def extrapolate(t, x, P, orientation, scalars, config):
     return x_next, 0.5 * (P_next + P_next.T), scratch[0:4].copy()
 
 
-@njit(cache=True)
-def rts_backward(x_filtered, P_filtered, x_predicted, P_predicted, transitions):
-    """RTS backward pass over rows 0..m-1 (:func:`kfusion.kalman.smoother.rts_backward`)::
-
-        C_k   = P_k Phi_{k+1}^T P_{k+1|k}^-1    (solved: C^T = P_{k+1|k}^-1 Phi P_k)
-        x_k^s = x_k + C_k (x_{k+1}^s - x_{k+1|k})
-        P_k^s = P_k + C_k (P_{k+1}^s - P_{k+1|k}) C_k^T,  symmetrised
-    Shapes (m, n) and (m, n, n); returns the smoothed (x, P)."""
-    x_smoothed = x_filtered.copy()
-    P_smoothed = P_filtered.copy()
-    for k in range(x_filtered.shape[0] - 2, -1, -1):
-        C = np.linalg.solve(P_predicted[k + 1], matmul(transitions[k + 1], P_filtered[k])).T
-        C = C.copy()
-        x_smoothed[k] = x_filtered[k] + matvec(C, x_smoothed[k + 1] - x_predicted[k + 1])
-        P = P_filtered[k] + matmul(matmul(C, P_smoothed[k + 1] - P_predicted[k + 1]),
-                                   C.T.copy())
-        P_smoothed[k] = 0.5 * (P + P.T)
-    return x_smoothed, P_smoothed
-
-
 # ---------------------------------------------------------------------------------------------
 # The batch driver's side: arrays in, per-row arrays out
 # ---------------------------------------------------------------------------------------------
@@ -1231,16 +1289,20 @@ class KernelRun:
         self.dead_reckoned = dead_reckoned
         self.counters = counters
         self.failed_event = failed_event
-        # smoother support (filled by run_kernel(smoothing=True))
-        self.x_predicted = np.zeros((0, x.shape[1]))
-        self.P_predicted = np.zeros((0, x.shape[1], x.shape[1]))
-        self.transitions = np.zeros((0, x.shape[1], x.shape[1]))
+        # smoother support (run_kernel(smoothing=True)): the kernel inputs, configuration,
+        # first state and the states saved every SAVE_EVERY rows, for smooth_run
+        self.replay: tuple = ()
 
 
 def _kernel_array(values: NDArray[np.generic], dtype: type) -> NDArray[np.generic]:
     """C-contiguous and writeable (a read-only array is another numba type: one more
     compilation)."""
     return np.require(values, dtype=dtype, requirements=["C", "W"])
+
+
+SAVE_EVERY: Final = 1024
+"""Rows between the states the forward pass saves for the smoother's backward pass
+(:func:`smooth_rows`): per row it keeps 1/SAVE_EVERY of a packed state."""
 
 
 def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
@@ -1250,11 +1312,17 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
                config: NDArray[np.float64], size: int, smoothing: bool = False) -> KernelRun:
     """Run :func:`filter_events` over merged events (``stream``, ``index`` (e,) each:
     :func:`kfusion.kalman.events.merge_order`). Shapes: IMU (n,), (n, 3), (n, 3); mocap (m,),
-    (m, 3), (m, 4), (m,); ``config`` from :func:`pack_config`; n states ``size``."""
+    (m, 3), (m, 4), (m,); ``config`` from :func:`pack_config`; n states ``size``. With
+    ``smoothing`` the run keeps what :func:`smooth_run` needs (the inputs and the states
+    saved every :data:`SAVE_EVERY` rows)."""
     rows = len(mocap_t)
-    acceleration_rows = _kernel_array(accelerometer, float)
-    rate_rows = _kernel_array(gyroscope, float)
-    finite = np.isfinite(acceleration_rows).all(axis=1) & np.isfinite(rate_rows).all(axis=1)
+    inputs = (_kernel_array(stream, np.int64), _kernel_array(index, np.int64),
+              _kernel_array(imu_t, float), _kernel_array(accelerometer, float),
+              _kernel_array(gyroscope, float), None, _kernel_array(mocap_t, float),
+              _kernel_array(mocap_position, float), _kernel_array(mocap_quaternion, float),
+              _kernel_array(visible, bool))
+    finite = np.isfinite(inputs[3]).all(axis=1) & np.isfinite(inputs[4]).all(axis=1)
+    inputs = inputs[:5] + (finite,) + inputs[6:]
     out_x = np.full((rows, size), np.nan)
     out_P = np.full((rows, size, size), np.nan)
     out_H = np.zeros((rows, 3, size))
@@ -1263,22 +1331,49 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     out_nis = np.full(rows, np.nan)
     out_dead_reckoned = np.zeros(rows, dtype=bool)
     counters = np.zeros(len(COUNTER_INDEX), dtype=np.int64)
-    kept = rows if smoothing else 0
-    x_predicted = np.full((kept, size), np.nan)
-    P_predicted = np.full((kept, size, size), np.nan)
-    transitions = np.full((kept, size, size), np.nan)
+    no_rows = np.zeros((0, size, size))
+    first_state = initial_state(size)
+    state = first_state.copy()
+    save_every = SAVE_EVERY if smoothing else 0
+    saved = rows // SAVE_EVERY if smoothing else 0
+    saved_states = np.zeros((saved, len(state)))
+    saved_events = np.zeros(saved, dtype=np.int64)
     failed = filter_events(
-        _kernel_array(stream, np.int64), _kernel_array(index, np.int64),
-        _kernel_array(imu_t, float), acceleration_rows, rate_rows, finite,
-        _kernel_array(mocap_t, float), _kernel_array(mocap_position, float),
-        _kernel_array(mocap_quaternion, float), _kernel_array(visible, bool), config, size,
-        out_x, out_P, out_H, out_offset, out_outcome, out_nis, out_dead_reckoned, counters,
-        x_predicted, P_predicted, transitions)
+        inputs[0], inputs[1], 0, len(stream), *inputs[2:], config, state, counters, 0, out_x,
+        out_P, out_H, out_offset, out_outcome, out_nis, out_dead_reckoned,
+        np.zeros((0, size)), no_rows, no_rows, save_every, saved_states, saved_events)
     run = KernelRun(out_x, out_P, out_H, out_offset, _OUTCOME_LOOKUP[out_outcome], out_nis,
                     out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(), strict=True)),
                     int(failed))
-    run.x_predicted, run.P_predicted, run.transitions = x_predicted, P_predicted, transitions
+    if smoothing:
+        run.replay = (inputs, config, first_state, saved_states, saved_events)
     return run
+
+
+def smooth_run(run: KernelRun, segments: list[tuple[int, int]]
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Smoothed (x (m, n), P (m, n, n)) of a forward run made with ``smoothing``
+    (:func:`smooth_rows`), each of ``segments`` ((first, stop) row ranges) smoothed on its own
+    (NaN elsewhere)."""
+    inputs, config, first_state, saved_states, saved_events = run.replay
+    m, n = run.x.shape
+    segment = np.full(m, -1, dtype=np.int64)
+    for number, (first, stop) in enumerate(segments):
+        segment[first:stop] = number
+    row_event = np.flatnonzero(inputs[0] == 1).astype(np.int64)
+    x_smoothed = np.full((m, n), np.nan)
+    P_smoothed = np.full((m, n, n), np.nan)
+    if m:
+        smooth_rows(inputs[0], inputs[1], row_event, *inputs[2:], config,  # type: ignore[call-arg]
+                    first_state, SAVE_EVERY, saved_states, saved_events, segment, run.x, run.P,
+                    x_smoothed, P_smoothed, np.zeros(len(COUNTER_INDEX), dtype=np.int64))
+    return x_smoothed, P_smoothed
+
+
+def saved_bytes_per_row(rows: int, size: int) -> float:
+    """Bytes per row the compiled smoother keeps beyond its filtered and smoothed (x, P): the
+    states saved every :data:`SAVE_EVERY` rows (and their event numbers)."""
+    return (rows // SAVE_EVERY) * (packed_size(size) + 1) * 8 / max(rows, 1)
 
 
 _OUTCOME_LOOKUP: Final = np.array(OUTCOME_NAMES + ("",))
