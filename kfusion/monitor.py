@@ -424,6 +424,7 @@ class ConsistencyMonitor:
         self._gravity = np.asarray(gravity, dtype=float)
         self._scales = HorizonScales(self.params)
         self._nis: deque[float] = deque(maxlen=self.params.nis_window)
+        self._nis_scale_value: float | None = None  # _nis_scale() of _nis (None: not yet)
         self._start: float | None = None  # time of the running shadow gap's last fix
         self._next_start = -math.inf
         self._rows_h: list[float] = []
@@ -457,6 +458,7 @@ class ConsistencyMonitor:
 
         if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
             self._nis.append(outcome.nis)
+            self._nis_scale_value = None
         if outcome.kind in USED_OUTCOMES and position is not None:
             self._last_fix = (t, np.array(position, dtype=float))
             if self._gated_fix is not None and prior is not None \
@@ -521,8 +523,11 @@ class ConsistencyMonitor:
     def _nis_scale(self) -> float:
         """The NIS matching factor when the windowed test says the innovations are too large,
         else 0 (no constraint: a small NIS says R is pessimistic, not that P may shrink)."""
-        test = windowed_nis_test(list(self._nis), self.params.nis_probability)
-        return nis_matching_scale(list(self._nis)) if test.mean > test.upper else 0.0
+        if self._nis_scale_value is None:  # read at every row; _nis changes at fused fixes
+            test = windowed_nis_test(list(self._nis), self.params.nis_probability)
+            self._nis_scale_value = (nis_matching_scale(list(self._nis))
+                                     if test.mean > test.upper else 0.0)
+        return self._nis_scale_value
 
     def fix_only(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """The position from the fixes alone, for when the IMU model is not trusted
