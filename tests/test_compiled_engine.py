@@ -9,6 +9,7 @@ The kernels compile once per process (numba ``cache=True`` keeps the machine cod
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -366,3 +367,32 @@ def test_smoother_recomputes_the_same_bits_from_saved_states(case: str,
     np.testing.assert_array_equal(blocks.x, whole.x)
     np.testing.assert_array_equal(blocks.P, whole.P)
     np.testing.assert_array_equal(blocks.result.position, whole.result.position)
+
+
+def test_compiled_predict_checks_every_input_form() -> None:
+    """CompiledFusion.predict's cheap path (float64 arrays, tuples and lists of floats) and its
+    full checks (anything else) give KalmanFusion's outcomes, counters and errors."""
+    from kfusion.kalman import KalmanFusion, KalmanParameters
+    from kfusion.kalman.compiled_fusion import CompiledFusion
+
+    params = KalmanParameters.from_profiles("mpu9255")
+    engines = [engine((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, -9.81), params)
+               for engine in (KalmanFusion, CompiledFusion)]
+    samples = [(0.01, np.array([0.0, 0.0, 9.81]), (0.0, 0.0, 0.1)),
+               (0.02, [0.0, 0.1, 9.8], np.array([0.0, 0.0, 0.1], dtype=np.float32)),
+               (np.float64(0.03), (0.0, 0.1, 9.8), [0, 0, 1]),
+               (0.04, (0.0, math.nan, 9.8), (0.0, 0.0, 0.1)),
+               (0.04, (0.0, 0.1, 9.8), (0.0, 0.0, 0.1)),
+               (0.04, (0.0, 0.1, 9.8), (0.0, 0.0, 0.1)),  # identical duplicate
+               (0.05, np.array([0.0, 1e9, 9.8]), (0.0, 0.0, 0.1))]  # implausible
+    for t, accelerometer, gyroscope in samples:
+        outcomes = {engine.predict(t, accelerometer, gyroscope) for engine in engines}
+        assert len(outcomes) == 1, (t, outcomes)
+    for t, accelerometer, gyroscope, message in (
+            (0.06, (0.0, 0.1), (0.0, 0.0, 0.1), r"accelerometer: expected shape \(3,\)"),
+            (math.inf, (0.0, 0.1, 9.8), (0.0, 0.0, 0.1), "expected a finite time"),
+            (0.035, (0.0, 0.1, 9.8), (0.0, 0.0, 0.1), "not after the previous IMU sample")):
+        for engine in engines:
+            with pytest.raises(ValueError, match=message):
+                engine.predict(t, accelerometer, gyroscope)
+    assert engines[0].counters == engines[1].counters

@@ -422,8 +422,7 @@ def control_term(R0, R1, dt, f0, f1, config, control):
 
 @njit(cache=True)
 def noise_terms(dt, acceleration_variance, bias_variance, config):
-    """Q's entries per axis ``(Q_pp, Q_pv, Q_vv, Q_bb)`` (:func:`process_noise`, same
-    arithmetic)."""
+    """Q's entries per axis ``(Q_pp, Q_pv, Q_vv, Q_bb)`` (:func:`process_noise`'s formula)."""
     a2 = config[C_ACC_DENSITY] * config[C_ACC_DENSITY]
     extra = acceleration_variance
     dt2 = dt * dt
@@ -541,13 +540,7 @@ def process_noise(dt, n, acceleration_variance, bias_variance, config):
     """
     p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
     Q = np.zeros((n, n))
-    a2 = config[C_ACC_DENSITY] * config[C_ACC_DENSITY]
-    extra = acceleration_variance
-    dt2 = dt * dt
-    pp = a2 * dt2 * dt + extra * dt2 * dt2 / 4.0
-    pv = a2 * dt2 + extra * dt2 * dt / 2.0
-    vv = a2 * dt + extra * dt2
-    bb = config[C_ACC_WALK] * config[C_ACC_WALK] * dt + bias_variance
+    pp, pv, vv, bb = noise_terms(dt, acceleration_variance, bias_variance, config)
     for axis in range(3):
         Q[p + axis, p + axis] = pp
         Q[p + axis, v + axis] = pv
