@@ -4,10 +4,16 @@
 the same thing with small pure step functions compiled by numba (``njit(cache=True)``: the
 machine code is cached on disk next to this file, or in numba's fallback cache directory), and
 a whole-loop kernel, :func:`filter_events`, that runs a recording's merged events
-(:func:`kfusion.kalman.events.merge_events`, called outside the kernel) in one call. Every step
+(:func:`kfusion.kalman.events.merge_order`, called outside the kernel) in one call. Every step
 is the filter's, equation for equation and branch for branch (first-order hold, IMU outages,
 saturation, orientation gating, chi-square gate, re-acquisition, resets), so the two engines
 agree to rounding (tests/test_compiled_engine.py: within 1e-9 m, same outcomes and statuses).
+The hot path allocates nothing per event: the predict forms ``F P F^T`` from F's blocks
+(:func:`structured_predict`), the update uses a 3x3 adjugate inverse and the expanded Joseph
+form (:func:`position_update`); the general forms (:func:`covariance_predict`,
+:func:`covariance_update`) are kept as their cross-check. The smoother's backward pass
+(:func:`smooth_rows`) recomputes the per-row predictions from states saved every
+:data:`SAVE_EVERY` rows instead of keeping them.
 
 State, in flat float arrays (numba compiles plain arrays best):
 
