@@ -3,7 +3,7 @@
 Rows: a bare filterpy 9-state predict/update loop (the yardstick); the batch filter and the
 smoother per engine (``compiled``: numba kernels, ``filterpy``: KalmanFusion), without and with
 the consistency monitor (the default of ``kfusion track``; the monitor watches a filter event by
-event, so with it the filterpy engine runs whatever the engine setting); a sweep of N runs of
+event, so with it the compiled engine runs step by step); a sweep of N runs of
 60 s recordings (IMU 200 Hz) on 2 processes, extrapolated to 1000 runs; the smoother's stored
 bytes per row against the state's; numba's import and the cold start (first call in a fresh
 process with an empty JIT cache, then with the cache written).
@@ -102,14 +102,17 @@ def sweep(runs: int, seconds: float, engine: str, monitor: bool) -> tuple[float,
 
 
 def smoother_bytes_per_row(seconds: float) -> tuple[int, int, int]:
-    """(state size n, bytes of x and P per row, bytes the smoother keeps per row)."""
-    run = run_smoother(recording(seconds), monitor=None)
+    """(state size n, bytes of x and P per row, bytes the compiled smoother keeps per row: its
+    filtered and smoothed x and P, and the states its forward pass saves for the backward pass,
+    which recomputes the per-row predictions and transitions from them block by block)."""
+    from kfusion.kalman import compiled
+
+    run = run_smoother(recording(seconds), monitor=None, engine="compiled")
     n = run.x.shape[1]
     state = 8 * (n + n * n)
     kept = sum(array.nbytes for array in (run.x, run.P, run.x_filtered, run.P_filtered))
-    # the forward pass's per-row predictions and transitions (x, P, Phi), freed after the pass
-    kept += 8 * len(run.x) * (n + 2 * n * n)
-    return n, state, kept // len(run.x)
+    kept += compiled.saved_bytes_per_row(len(run.x), n) * len(run.x)
+    return n, state, int(round(kept / len(run.x)))
 
 
 def push_imu_median(engine: str, seconds: float) -> float:
@@ -208,8 +211,8 @@ def main() -> None:
         rows.append((f"Tracker.push_imu in order, engine {engine}", f"median {median * 1e6:.0f} µs",
                      ""))
     n, state, kept = smoother_bytes_per_row(seconds)
-    rows.append((f"smoother memory per row ({n} states)", f"{kept} bytes",
-                 f"{kept / state:.1f}x the state's {state} bytes (x, P)"))
+    rows.append((f"compiled smoother memory per row ({n} states)", f"{kept} bytes",
+                 f"{kept / state:.3f}x the state's {state} bytes (x, P)"))
     rows.append(("import kfusion.tracker (no numba)", f"{import_time() * 1e3:.0f} ms", ""))
     if not args.quick:
         numba_import, cold, warm = cold_start()

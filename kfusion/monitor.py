@@ -429,6 +429,7 @@ class ConsistencyMonitor:
         self._gravity = np.asarray(gravity, dtype=float)
         self._scales = HorizonScales(self.params)
         self._nis: deque[float] = deque(maxlen=self.params.nis_window)
+        self._nis_scale_value: float | None = None  # _nis_scale() of _nis (None: not yet)
         self._start: float | None = None  # time of the running shadow gap's last fix
         self._next_start = -math.inf
         self._rows_h: list[float] = []
@@ -462,6 +463,7 @@ class ConsistencyMonitor:
 
         if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
             self._nis.append(outcome.nis)
+            self._nis_scale_value = None
         if outcome.kind in USED_OUTCOMES and position is not None:
             self._last_fix = (t, np.array(position, dtype=float))
             if self._gated_fix is not None and prior is not None \
@@ -503,6 +505,8 @@ class ConsistencyMonitor:
     def _close(self) -> None:
         """End the running shadow gap and keep its evidence."""
         if self._rows_h:
+            # a new HorizonScales, never the one a snapshot may share (_copy_state)
+            self._scales = self._scales.copy()
             self._scales.add_gap(self._rows_h, self._rows_scale)
             self._accelerations.append(fit_acceleration_error(self._rows_h,
                                                               np.array(self._rows_error)))
@@ -524,8 +528,11 @@ class ConsistencyMonitor:
     def _nis_scale(self) -> float:
         """The NIS matching factor when the windowed test says the innovations are too large,
         else 0 (no constraint: a small NIS says R is pessimistic, not that P may shrink)."""
-        test = windowed_nis_test(list(self._nis), self.params.nis_probability)
-        return nis_matching_scale(list(self._nis)) if test.mean > test.upper else 0.0
+        if self._nis_scale_value is None:  # read at every row; _nis changes at fused fixes
+            test = windowed_nis_test(list(self._nis), self.params.nis_probability)
+            self._nis_scale_value = (nis_matching_scale(list(self._nis))
+                                     if test.mean > test.upper else 0.0)
+        return self._nis_scale_value
 
     def fix_only(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """The position from the fixes alone, for when the IMU model is not trusted
@@ -601,17 +608,17 @@ class ConsistencyMonitor:
 
 
 def _copy_state(state: dict[str, object]) -> dict[str, object]:
-    """A copy of the monitor's state dict that shares nothing mutable with it: deques, lists
-    and :class:`HorizonScales` are copied; floats, tuples and the arrays the monitor stores
-    (each built new and never changed in place) are shared. It stands for ``copy.deepcopy``,
-    which took about 0.7 ms per snapshot (the Tracker takes one at mocap rate)."""
+    """A copy of the monitor's state dict that shares nothing mutable with it: deques and lists
+    are copied; floats, tuples, the arrays the monitor stores (each built new and never changed
+    in place) and the :class:`HorizonScales` (replaced by a changed copy, never changed in
+    place: :meth:`ConsistencyMonitor._close`) are shared. It stands for ``copy.deepcopy``,
+    which took about 0.7 ms per snapshot (the Tracker takes one at mocap rate); copying the
+    scales' rows too took most of the 10-20 µs a snapshot still cost."""
     copied: dict[str, object] = {}
     for key, value in state.items():
         if isinstance(value, deque):
             value = deque(value, maxlen=value.maxlen)
         elif isinstance(value, list):
             value = list(value)
-        elif isinstance(value, HorizonScales):
-            value = value.copy()
         copied[key] = value
     return copied

@@ -616,6 +616,8 @@ class _KalmanEstimator:
 
             fusion_class = CompiledFusion
         self._fusion = fusion_class(imu_to_body, gravity, params, lever_arm=lever_arm)
+        # the compiled engine's predict without its second validation of a checked sample
+        self._predict_valid = getattr(self._fusion, "predict_valid", None)
         # the consistency monitor (kfusion.monitor) with its shadow filter: scales the bound in
         # gaps as the shadow gaps showed it must, or refuses to bridge (read() gives None)
         self.monitor = ConsistencyMonitor(
@@ -626,7 +628,13 @@ class _KalmanEstimator:
         self.imu_latency_s = float(params.imu_latency_s)
 
     def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
-        self._fusion.predict(t, accelerometer, gyroscope)
+        """A sample the tracker validated: t a finite float after the previous sample's stamp,
+        accelerometer (3,) finite floats, gyroscope 3 finite floats."""
+        if self._predict_valid is not None:
+            a0, a1, a2 = accelerometer.tolist()
+            self._predict_valid(t, a0, a1, a2, *gyroscope)
+        else:
+            self._fusion.predict(t, accelerometer, gyroscope)
         self.monitor.imu(t, accelerometer, gyroscope)
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str:

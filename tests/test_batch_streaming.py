@@ -264,3 +264,24 @@ def test_the_latency_moves_imu_samples_in_time():
     fusion = KalmanFusion(recording.info.imu_to_body, gravity, params)
     fusion.predict(0.5, -gravity, np.zeros(3))
     assert fusion.time == 0.25
+
+
+def test_merge_order_is_the_sorted_event_keys():
+    """merge_order (arrays, np.lexsort) against a plain sort by event_key, with ties between
+    the streams and between a latency-shifted IMU stamp and a frame."""
+    from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, event_key, merge_order
+
+    rng = np.random.default_rng(6)
+    for trial in range(50):
+        imu_t = np.cumsum(rng.choice([0.0025, 0.005, 0.01], 200))
+        mocap_t = np.cumsum(rng.choice([0.005, 0.01], 100))
+        if trial % 2:
+            mocap_t[::3] = imu_t[:len(mocap_t[::3])]
+        latency = float(rng.choice([0.0, 0.0025, 0.005, 0.007]))
+        expected = [(*event_key(t, IMU_STREAM, latency), index)
+                    for index, t in enumerate(imu_t.tolist())]
+        expected += [(*event_key(t, MOCAP_STREAM), index)
+                     for index, t in enumerate(mocap_t.tolist())]
+        expected.sort(key=lambda event: (event[0], event[1]))
+        times, stream, index = merge_order(imu_t, mocap_t, latency)
+        assert list(zip(times.tolist(), stream.tolist(), index.tolist(), strict=True)) == expected

@@ -9,6 +9,7 @@ The kernels compile once per process (numba ``cache=True`` keeps the machine cod
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -261,3 +262,137 @@ def test_track_command_engines_agree(tmp_path: Path) -> None:
     np.testing.assert_allclose(outputs["compiled"].position, outputs["filterpy"].position,
                                rtol=0, atol=TOLERANCE_M)
     assert outputs["compiled"].status.tolist() == outputs["filterpy"].status.tolist()
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    q = rng.normal(size=4)
+    return compiled.rotation_matrix(q / np.linalg.norm(q))
+
+
+@pytest.mark.parametrize("size", [9, 12])
+def test_structured_predict_equals_the_general_product(size: int) -> None:
+    """The hot-path predict (F from its blocks, no matrices formed) gives the bits of
+    ``covariance_predict`` with :func:`interval_matrices` and :func:`process_noise`, and the
+    transition product the smoother keeps."""
+    rng = np.random.default_rng(3)
+    config = np.zeros(compiled.CONFIG_SIZE)
+    config[compiled.C_POSITION], config[compiled.C_VELOCITY], config[compiled.C_BIAS] = 0, 3, 6
+    config[compiled.C_ACC_DENSITY], config[compiled.C_ACC_WALK] = 0.02, 1e-3
+    config[compiled.C_GRAVITY:compiled.C_GRAVITY + 3] = [0.0, 0.0, -9.81]
+    for _ in range(20):
+        R0, R1 = random_rotation(rng), random_rotation(rng)
+        dt = float(rng.uniform(1e-3, 0.05))
+        f0, f1 = rng.normal(size=3) * 5, rng.normal(size=3) * 5
+        A = rng.normal(size=(size, size))
+        P = A @ A.T
+        x = rng.normal(size=size)
+        extra, bias_variance = float(rng.uniform(0, 1e-3)), float(rng.uniform(0, 1e-6))
+        F, B = compiled.interval_matrices(R0, R1, dt, size, config)
+        Q = compiled.process_noise(dt, size, extra, bias_variance, config)
+        x_general, P_general = x.copy(), P.copy()
+        compiled.covariance_predict(x_general, P_general, F, B,
+                                    np.concatenate([f0, f1, config[35:38]]), Q)
+        blocks = np.empty((2, 3, 3))
+        compiled.imu_blocks(R0, R1, dt, blocks)
+        control = np.empty(size)
+        compiled.control_term(R0, R1, dt, f0, f1, config, control)
+        pp, pv, vv, bb = compiled.noise_terms(dt, extra, bias_variance, config)
+        interval = rng.normal(size=(size, size))
+        expected_interval = compiled.matmul(F, interval)
+        compiled.structured_predict(x, P, dt, blocks, control, pp, pv, vv, bb, config,
+                                    np.empty((2, size, size)), interval)
+        np.testing.assert_array_equal(x, x_general)
+        np.testing.assert_array_equal(P, P_general)
+        np.testing.assert_array_equal(interval, expected_interval)
+
+
+@pytest.mark.parametrize("size", [9, 12])
+def test_position_update_equals_the_joseph_form(size: int) -> None:
+    """The hot-path update (expanded Joseph form, adjugate 3x3 inverse) against
+    ``covariance_update`` (the Joseph form with a LAPACK inverse), lever-arm columns in H."""
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        A = rng.normal(size=(size, size)) * 0.01
+        P = A @ A.T + np.eye(size) * 1e-6
+        x = rng.normal(size=size)
+        H = np.zeros((3, size))
+        H[:, 0:3] = np.eye(3)
+        if size == 12:
+            H[:, 9:12] = -random_rotation(rng)
+        z = H @ x + rng.normal(size=3) * 0.01
+        r = 1e-6
+        x_general, P_general = x.copy(), P.copy()
+        compiled.covariance_update(x_general, P_general, z, H, np.eye(3) * r)
+        PHT, S, S_inverse = np.empty((size, 3)), np.empty((3, 3)), np.empty((3, 3))
+        compiled.innovation_covariance(P, H, r, PHT, S)
+        compiled.inverse3(S, S_inverse)
+        np.testing.assert_allclose(S_inverse @ S, np.eye(3), atol=1e-12)
+        compiled.position_update(x, P, z - H @ x, S_inverse, S, PHT, np.empty((size, 3)))
+        np.testing.assert_allclose(x, x_general, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(P, P_general, rtol=1e-9, atol=1e-18)
+        np.testing.assert_array_equal(P, P.T)
+
+
+def test_status_codes_follow_the_status_rule() -> None:
+    """The compiled status loop against the rule row by row, thresholds hit exactly."""
+    from kfusion.kalman.batch import row_statuses
+
+    rng = np.random.default_rng(5)
+    since = np.concatenate([rng.uniform(0, 1.0, 300), [0.0, 0.3, np.inf, np.nan, 0.005]])
+    since[::7] = 0.3  # max_bridge_s itself
+    fused = rng.random(len(since)) < 0.5
+    reckoned = rng.random(len(since)) < 0.8
+    for dead_reckoned in (reckoned, None):
+        np.testing.assert_array_equal(
+            row_statuses(since, fused, 0.3, dead_reckoned, engine="compiled"),
+            row_statuses(since, fused, 0.3, dead_reckoned))
+
+
+@pytest.mark.parametrize("case", ["gaps_lever_arm_states", "gated_and_reacquired", "reset"])
+def test_smoother_recomputes_the_same_bits_from_saved_states(case: str,
+                                                            monkeypatch: pytest.MonkeyPatch
+                                                            ) -> None:
+    """The compiled backward pass runs the forward loop again block by block from saved states
+    instead of keeping each row's prediction: blocks of 7 rows (many boundaries, inside and
+    across segments) give the bits of one block holding the whole recording."""
+    from kfusion.kalman import run_smoother
+
+    build, overrides = CASES[case]
+    recording = build()
+    monkeypatch.setattr(compiled, "SAVE_EVERY", len(recording.mocap) + 1)
+    whole = run_smoother(recording, monitor=None, engine="compiled", **overrides)
+    monkeypatch.setattr(compiled, "SAVE_EVERY", 7)
+    blocks = run_smoother(recording, monitor=None, engine="compiled", **overrides)
+    assert np.isfinite(whole.x).any(axis=1).sum() > 100
+    np.testing.assert_array_equal(blocks.x, whole.x)
+    np.testing.assert_array_equal(blocks.P, whole.P)
+    np.testing.assert_array_equal(blocks.result.position, whole.result.position)
+
+
+def test_compiled_predict_checks_every_input_form() -> None:
+    """CompiledFusion.predict's cheap path (float64 arrays, tuples and lists of floats) and its
+    full checks (anything else) give KalmanFusion's outcomes, counters and errors."""
+    from kfusion.kalman import KalmanFusion, KalmanParameters
+    from kfusion.kalman.compiled_fusion import CompiledFusion
+
+    params = KalmanParameters.from_profiles("mpu9255")
+    engines = [engine((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, -9.81), params)
+               for engine in (KalmanFusion, CompiledFusion)]
+    samples = [(0.01, np.array([0.0, 0.0, 9.81]), (0.0, 0.0, 0.1)),
+               (0.02, [0.0, 0.1, 9.8], np.array([0.0, 0.0, 0.1], dtype=np.float32)),
+               (np.float64(0.03), (0.0, 0.1, 9.8), [0, 0, 1]),
+               (0.04, (0.0, math.nan, 9.8), (0.0, 0.0, 0.1)),
+               (0.04, (0.0, 0.1, 9.8), (0.0, 0.0, 0.1)),
+               (0.04, (0.0, 0.1, 9.8), (0.0, 0.0, 0.1)),  # identical duplicate
+               (0.05, np.array([0.0, 1e9, 9.8]), (0.0, 0.0, 0.1))]  # implausible
+    for t, accelerometer, gyroscope in samples:
+        outcomes = {engine.predict(t, accelerometer, gyroscope) for engine in engines}
+        assert len(outcomes) == 1, (t, outcomes)
+    for t, accelerometer, gyroscope, message in (
+            (0.06, (0.0, 0.1), (0.0, 0.0, 0.1), r"accelerometer: expected shape \(3,\)"),
+            (math.inf, (0.0, 0.1, 9.8), (0.0, 0.0, 0.1), "expected a finite time"),
+            (0.035, (0.0, 0.1, 9.8), (0.0, 0.0, 0.1), "not after the previous IMU sample")):
+        for engine in engines:
+            with pytest.raises(ValueError, match=message):
+                engine.predict(t, accelerometer, gyroscope)
+    assert engines[0].counters == engines[1].counters

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from kfusion.conventions import BRIDGED, LOST
 from kfusion.kalman.engines import DEFAULT_ENGINE, ENGINES
-from kfusion.kalman.events import IMU_STREAM, merge_events
+from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, merge_events, merge_order
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
 from kfusion.kalman.markers import shared_run_lengths
 from kfusion.kalman.model import output_covariance, output_point
@@ -221,7 +221,8 @@ class FilterRun:
 
 def status_from_fixes(t: NDArray[np.float64], fixed: NDArray[np.bool_], initialised:
                       NDArray[np.bool_], max_bridge_s: float,
-                      dead_reckoned: NDArray[np.bool_] | None = None
+                      dead_reckoned: NDArray[np.bool_] | None = None, *,
+                      engine: str = "filterpy"
                       ) -> tuple[NDArray[np.str_], NDArray[np.float64]]:
     """Status and time since the last fix (s) at each row: the status rule
     (:func:`kfusion.streamhealth.tracking_status`) at the row's time, right after its frame.
@@ -230,20 +231,21 @@ def status_from_fixes(t: NDArray[np.float64], fixed: NDArray[np.bool_], initiali
     ``bridged`` while the time since the last used fix is at most ``max_bridge_s`` and the row
     is ``dead_reckoned`` (IMU-propagated since the last fix:
     :meth:`KalmanFusion.dead_reckoning_until`; None: every row), else ``lost``. Rows where the
-    filter is not ``initialised`` (before the first fix, after a reset) are lost.
+    filter is not ``initialised`` (before the first fix, after a reset) are lost. ``engine``:
+    :func:`row_statuses`'.
     """
     t = np.asarray(t, dtype=float)
     fix_time = np.where(fixed, t, -np.inf)
     last_fix = np.maximum.accumulate(fix_time) if len(t) else fix_time
     since = t - last_fix
     status = row_statuses(np.where(initialised, since, np.inf), fixed, max_bridge_s,
-                          dead_reckoned)
+                          dead_reckoned, engine=engine)
     return status, since
 
 
 def row_statuses(time_since_fix: NDArray[np.float64], fused: NDArray[np.bool_],
-                 max_bridge_s: float, dead_reckoned: NDArray[np.bool_] | None = None
-                 ) -> NDArray[np.str_]:
+                 max_bridge_s: float, dead_reckoned: NDArray[np.bool_] | None = None, *,
+                 engine: str = "filterpy") -> NDArray[np.str_]:
     """:func:`kfusion.streamhealth.tracking_status` at each of m rows, right after the row's
     frame (the last frame is the row's own: ``fused`` (m,) says whether its fix was used).
 
@@ -252,9 +254,18 @@ def row_statuses(time_since_fix: NDArray[np.float64], fused: NDArray[np.bool_],
         fused: (m,) the row's fix was used.
         max_bridge_s: s.
         dead_reckoned: (m,) the row is within the dead-reckoning horizon; None: every row.
+        engine: ``compiled`` applies the rule in one compiled loop
+            (:func:`kfusion.kalman.compiled.status_codes`), ``filterpy`` row by row here.
     """
     reckoned = (np.ones(len(fused), dtype=bool) if dead_reckoned is None
                 else np.asarray(dead_reckoned, dtype=bool))
+    if engine == "compiled":
+        from kfusion.kalman import compiled
+
+        codes = compiled.status_codes(np.ascontiguousarray(time_since_fix, dtype=float),
+                                      np.ascontiguousarray(fused, dtype=bool), reckoned,
+                                      FIX_TIMEOUT_S, float(max_bridge_s))
+        return compiled.STATUS_NAMES[codes]
     rows = zip(np.asarray(time_since_fix, dtype=float).tolist(),
                np.asarray(fused, dtype=bool).tolist(), reckoned.tolist(), strict=True)
     return np.array([tracking_status(since, last_fused, fix_timeout_s=FIX_TIMEOUT_S,
@@ -347,6 +358,7 @@ class _RowRecorder:
         self.fix_position = np.full((rows, 3), np.nan)
         self.fix_variance = np.full((rows, 3), np.nan)
         self.counters: dict[str, int] = {}
+        self._fixed: NDArray[np.bool_] | None = None  # from_kernel: the rows whose fix was used
 
     def finish(self) -> None:
         """Take the filter's final counters."""
@@ -378,8 +390,30 @@ class _RowRecorder:
                                                     np.zeros((3, 3)))
                 self.rival_variance[row] = np.diag(widened)
 
+    @classmethod
+    def from_kernel(cls, fusion: KalmanFusion, run: Any) -> _RowRecorder:
+        """The recorder of a compiled whole-loop run (:class:`kfusion.kalman.compiled.
+        KernelRun`): its arrays taken as they are (no per-row copies), no monitor."""
+        recorder = cls.__new__(cls)
+        rows = len(run.nis)
+        recorder.fusion, recorder.monitor = fusion, None
+        recorder.scale_tables = np.ones((rows, 1))
+        recorder.allowed = np.ones(rows, dtype=bool)
+        recorder.rival_variance = np.zeros((rows, 3))
+        recorder.fix_position = np.full((rows, 3), np.nan)
+        recorder.fix_variance = np.full((rows, 3), np.nan)
+        recorder.x, recorder.P = run.x, run.P
+        recorder.output_matrix, recorder.output_offset = run.output_matrix, run.output_offset
+        recorder.outcome = run.outcome.astype(object)
+        recorder.nis, recorder.dead_reckoned = run.nis, run.dead_reckoned
+        recorder.counters = run.counters
+        recorder._fixed = np.isin(run.outcome, USED_OUTCOMES)
+        return recorder
+
     @property
     def fixed(self) -> NDArray[np.bool_]:
+        if self._fixed is not None:
+            return self._fixed
         return np.isin(self.outcome.astype(str), USED_OUTCOMES)
 
     @property
@@ -406,21 +440,17 @@ def compiled_rows(recording: Recording, fusion: KalmanFusion, *, smoothing: bool
 
     recording = on_mocap_clock(recording)
     imu, mocap = recording.imu, recording.mocap
-    events = merge_events(imu.t.tolist(), mocap.t.tolist(), fusion.params.imu_latency_s)
-    while events and events[-1][1] == IMU_STREAM:
-        events.pop()
+    if np.isnan(imu.t).any() or np.isnan(mocap.t).any():
+        return None  # no place in the fusion order: the filterpy engine names it
+    _, stream, index = merge_order(imu.t, mocap.t, fusion.params.imu_latency_s)
+    frames = np.flatnonzero(stream == MOCAP_STREAM)
+    end = int(frames[-1]) + 1 if len(frames) else 0  # IMU samples after the last row: unused
     run = compiled.run_kernel(imu.t, imu.accelerometer, imu.gyroscope, mocap.t, mocap.position,
-                              mocap.quaternion, mocap.visible, events, fusion.kernel_config(),
-                              fusion.size, smoothing)
+                              mocap.quaternion, mocap.visible, stream[:end], index[:end],
+                              fusion.kernel_config(), fusion.size, smoothing)
     if run.failed_event >= 0:
         return None
-    recorder = _RowRecorder(fusion, len(mocap))
-    recorder.x, recorder.P = run.x, run.P
-    recorder.output_matrix, recorder.output_offset = run.output_matrix, run.output_offset
-    recorder.outcome = run.outcome.astype(object)
-    recorder.nis, recorder.dead_reckoned = run.nis, run.dead_reckoned
-    recorder.counters = run.counters
-    return recorder, run
+    return _RowRecorder.from_kernel(fusion, run), run
 
 
 def compiled_points(recorder: _RowRecorder, x: NDArray[np.float64] | None = None,
@@ -465,7 +495,8 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
         process_recording(recording, fusion, recorder.record, watcher, measurement)
         recorder.finish()
     status, since = status_from_fixes(recording.mocap.t, recorder.fixed, recorder.initialised,
-                                      params.max_bridge_s, recorder.dead_reckoned)
+                                      params.max_bridge_s, recorder.dead_reckoned,
+                                      engine="compiled" if rows is not None else "filterpy")
     position, variance = (compiled_points(recorder) if rows is not None else
                           point_estimates(recorder.x, recorder.P, recorder.output_matrix,
                                           recorder.output_offset))

@@ -4,10 +4,16 @@
 the same thing with small pure step functions compiled by numba (``njit(cache=True)``: the
 machine code is cached on disk next to this file, or in numba's fallback cache directory), and
 a whole-loop kernel, :func:`filter_events`, that runs a recording's merged events
-(:func:`kfusion.kalman.events.merge_events`, called outside the kernel) in one call. Every step
+(:func:`kfusion.kalman.events.merge_order`, called outside the kernel) in one call. Every step
 is the filter's, equation for equation and branch for branch (first-order hold, IMU outages,
 saturation, orientation gating, chi-square gate, re-acquisition, resets), so the two engines
 agree to rounding (tests/test_compiled_engine.py: within 1e-9 m, same outcomes and statuses).
+The hot path allocates nothing per event: the predict forms ``F P F^T`` from F's blocks
+(:func:`structured_predict`), the update uses a 3x3 adjugate inverse and the expanded Joseph
+form (:func:`position_update`); the general forms (:func:`covariance_predict`,
+:func:`covariance_update`) are kept as their cross-check. The smoother's backward pass
+(:func:`smooth_rows`) recomputes the per-row predictions from states saved every
+:data:`SAVE_EVERY` rows instead of keeping them.
 
 State, in flat float arrays (numba compiles plain arrays best):
 
@@ -33,7 +39,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from kfusion import streamhealth
-from kfusion.conventions import SMALL_ANGLE
+from kfusion.conventions import BRIDGED, LOST, SMALL_ANGLE, TRACKED
 from kfusion.kalman import model
 from kfusion.kalman.filter import (
     ACCEPTED,
@@ -209,6 +215,31 @@ def quaternion_log(q):
 
 
 @njit(cache=True)
+def rotate(orientation, x, y, z):
+    """``q <- normalise(q ⊗ Exp([x, y, z]))`` on ``orientation[0:4]`` in place
+    (:func:`quaternion_exp`, :func:`quaternion_product`, :func:`normalise`, same arithmetic,
+    no temporary arrays)."""
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < _SMALL_ANGLE:
+        b0, b1, b2, b3 = 1.0, 0.5 * x, 0.5 * y, 0.5 * z
+    elif not math.isfinite(angle):
+        b0 = b1 = b2 = b3 = math.nan
+    else:
+        scale = math.sin(0.5 * angle) / angle
+        b0, b1, b2, b3 = math.cos(0.5 * angle), scale * x, scale * y, scale * z
+    a0, a1, a2, a3 = orientation[0], orientation[1], orientation[2], orientation[3]
+    q0 = a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3
+    q1 = a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2
+    q2 = a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1
+    q3 = a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0
+    inverse = 1.0 / math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    orientation[0] = q0 * inverse
+    orientation[1] = q1 * inverse
+    orientation[2] = q2 * inverse
+    orientation[3] = q3 * inverse
+
+
+@njit(cache=True)
 def conjugate(q):
     """``q* = [w, -x, -y, -z]``."""
     out = np.empty(4)
@@ -300,6 +331,185 @@ def covariance_update(x, P, z, H, R):
 
 
 @njit(cache=True)
+def imu_blocks(R0, R1, dt, blocks):
+    """The transition's bias blocks into ``blocks`` (2, 3, 3), in place (the entries of
+    :func:`interval_matrices`, same arithmetic)::
+
+        F_pb = -dt^2 (R0/3 + R1/6)  (blocks[0]),  F_vb = -dt (R0 + R1)/2  (blocks[1])
+    """
+    dt2 = dt * dt
+    for i in range(3):
+        for j in range(3):
+            blocks[0, i, j] = -(R0[i, j] * (dt2 / 3.0) + R1[i, j] * (dt2 / 6.0))
+            blocks[1, i, j] = -(R0[i, j] * (0.5 * dt) + R1[i, j] * (0.5 * dt))
+
+
+@njit(cache=True)
+def transition_times(A, out, dt, blocks, config):
+    """``out = F A`` for the IMU transition ``F = I + [[0, dt I, F_pb], [0, 0, F_vb], 0]``
+    (:func:`interval_matrices`' F, ``blocks`` from :func:`imu_blocks`; zero blocks: the no-IMU
+    transition) without forming F: rows of A combined, the terms in :func:`matmul`'s order.
+    ``out`` must not be ``A``."""
+    p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
+    n = A.shape[0]
+    columns = A.shape[1]
+    for i in range(n):
+        for j in range(columns):
+            out[i, j] = A[i, j]
+    for i in range(3):
+        for j in range(columns):
+            out[p + i, j] = ((((A[p + i, j] + dt * A[v + i, j]) + blocks[0, i, 0] * A[b, j])
+                              + blocks[0, i, 1] * A[b + 1, j]) + blocks[0, i, 2] * A[b + 2, j])
+            out[v + i, j] = (((A[v + i, j] + blocks[1, i, 0] * A[b, j])
+                              + blocks[1, i, 1] * A[b + 1, j]) + blocks[1, i, 2] * A[b + 2, j])
+
+
+@njit(cache=True)
+def structured_predict(x, P, dt, blocks, control, pp, pv, vv, bb, config, work, interval):
+    """Kalman predict in place with the IMU transition in blocks (:func:`transition_times`)::
+
+        x <- F x + c,  P <- F (F P)^T + Q  (= F P F^T + Q for a symmetric P), symmetrised
+    with ``c`` the control term ``B u`` (:func:`control_term`: position and velocity rows)
+    and Q's nonzero entries per axis ``Q_pp, Q_pv, Q_vv, Q_bb`` (:func:`process_noise`).
+    ``work`` (2, n, n) scratch; ``interval`` (n, n) becomes ``F interval`` unless empty.
+    Allocation-free: the compiled engine's hot path (equal to :func:`covariance_predict` with
+    those F, B u, Q up to the sign of exact zeros)."""
+    p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
+    n = x.shape[0]
+    for i in range(3):
+        position = (((x[p + i] + dt * x[v + i]) + blocks[0, i, 0] * x[b])
+                    + blocks[0, i, 1] * x[b + 1]) + blocks[0, i, 2] * x[b + 2]
+        velocity = ((x[v + i] + blocks[1, i, 0] * x[b]) + blocks[1, i, 1] * x[b + 1]
+                    ) + blocks[1, i, 2] * x[b + 2]
+        x[p + i] = position + control[p + i]
+        x[v + i] = velocity + control[v + i]
+    FP = work[0]
+    transition_times(P, FP, dt, blocks, config)
+    transposed = work[1]
+    for i in range(n):
+        for j in range(n):
+            transposed[i, j] = FP[j, i]
+    transition_times(transposed, P, dt, blocks, config)
+    for i in range(3):
+        P[p + i, p + i] += pp
+        P[p + i, v + i] += pv
+        P[v + i, p + i] += pv
+        P[v + i, v + i] += vv
+        P[b + i, b + i] += bb
+    symmetrise(P)
+    if interval.shape[0] > 0:
+        for i in range(n):
+            for j in range(n):
+                transposed[i, j] = interval[i, j]
+        transition_times(transposed, interval, dt, blocks, config)
+
+
+@njit(cache=True)
+def control_term(R0, R1, dt, f0, f1, config, control):
+    """``c = B u`` (n,) in place, ``u = [f0; f1; g]`` (:func:`interval_matrices`' B, in
+    :func:`matvec`'s order)::
+
+        c_p = dt^2 (R0 f0/3 + R1 f1/6) + dt^2/2 g,  c_v = dt (R0 f0 + R1 f1)/2 + dt g
+    """
+    p, v = int(config[C_POSITION]), int(config[C_VELOCITY])
+    control[:] = 0.0
+    dt2 = dt * dt
+    for i in range(3):
+        position = 0.0
+        velocity = 0.0
+        for j in range(3):
+            position += R0[i, j] * (dt2 / 3.0) * f0[j]
+            velocity += R0[i, j] * (0.5 * dt) * f0[j]
+        for j in range(3):
+            position += R1[i, j] * (dt2 / 6.0) * f1[j]
+            velocity += R1[i, j] * (0.5 * dt) * f1[j]
+        control[p + i] = position + 0.5 * dt2 * config[C_GRAVITY + i]
+        control[v + i] = velocity + dt * config[C_GRAVITY + i]
+
+
+@njit(cache=True)
+def noise_terms(dt, acceleration_variance, bias_variance, config):
+    """Q's entries per axis ``(Q_pp, Q_pv, Q_vv, Q_bb)`` (:func:`process_noise`'s formula)."""
+    a2 = config[C_ACC_DENSITY] * config[C_ACC_DENSITY]
+    extra = acceleration_variance
+    dt2 = dt * dt
+    pp = a2 * dt2 * dt + extra * dt2 * dt2 / 4.0
+    pv = a2 * dt2 + extra * dt2 * dt / 2.0
+    vv = a2 * dt + extra * dt2
+    bb = config[C_ACC_WALK] * config[C_ACC_WALK] * dt + bias_variance
+    return pp, pv, vv, bb
+
+
+@njit(cache=True)
+def inverse3(S, out):
+    """``out = S^-1`` for a 3x3 matrix by its adjugate: ``S^-1 = adj(S) / det(S)`` (NaN or inf
+    entries when S is singular or not finite)."""
+    c00 = S[1, 1] * S[2, 2] - S[1, 2] * S[2, 1]
+    c01 = S[1, 2] * S[2, 0] - S[1, 0] * S[2, 2]
+    c02 = S[1, 0] * S[2, 1] - S[1, 1] * S[2, 0]
+    inverse_det = 1.0 / (S[0, 0] * c00 + S[0, 1] * c01 + S[0, 2] * c02)
+    out[0, 0] = c00 * inverse_det
+    out[1, 0] = c01 * inverse_det
+    out[2, 0] = c02 * inverse_det
+    out[0, 1] = (S[0, 2] * S[2, 1] - S[0, 1] * S[2, 2]) * inverse_det
+    out[1, 1] = (S[0, 0] * S[2, 2] - S[0, 2] * S[2, 0]) * inverse_det
+    out[2, 1] = (S[0, 1] * S[2, 0] - S[0, 0] * S[2, 1]) * inverse_det
+    out[0, 2] = (S[0, 1] * S[1, 2] - S[0, 2] * S[1, 1]) * inverse_det
+    out[1, 2] = (S[0, 2] * S[1, 0] - S[0, 0] * S[1, 2]) * inverse_det
+    out[2, 2] = (S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]) * inverse_det
+
+
+@njit(cache=True)
+def innovation_covariance(P, H, noise_variance, PHT, S):
+    """``P H^T`` into PHT (n, 3) and ``S = H P H^T + r I`` into S (3, 3), in place."""
+    n = P.shape[0]
+    for i in range(n):
+        for k in range(3):
+            total = 0.0
+            for j in range(n):
+                h = H[k, j]
+                if h != 0.0:
+                    total += P[i, j] * h
+            PHT[i, k] = total
+    for k in range(3):
+        for m in range(3):
+            total = 0.0
+            for i in range(n):
+                h = H[k, i]
+                if h != 0.0:
+                    total += h * PHT[i, m]
+            S[k, m] = total + (noise_variance if k == m else 0.0)
+
+
+@njit(cache=True)
+def position_update(x, P, y, S_inverse, S, PHT, K):
+    """Kalman update in place with the innovation y (3,), ``S^-1`` and S (3, 3), ``P H^T``
+    (n, 3) (:func:`innovation_covariance`) and scratch K (n, 3); the Joseph form expanded,
+    symmetrised::
+
+        K = P H^T S^-1,  x <- x + K y,
+        P <- (I - K H) P (I - K H)^T + K R K^T = P - K (P H^T)^T - (P H^T) K^T + K S K^T
+    (``S = H P H^T + R``): products with 3 inner terms, no n x n x n product."""
+    n = x.shape[0]
+    for i in range(n):
+        for k in range(3):
+            K[i, k] = PHT[i, 0] * S_inverse[0, k] + PHT[i, 1] * S_inverse[1, k] + PHT[i, 2] * (
+                S_inverse[2, k])
+    for i in range(n):
+        x[i] += K[i, 0] * y[0] + K[i, 1] * y[1] + K[i, 2] * y[2]
+    for i in range(n):
+        KS0 = K[i, 0] * S[0, 0] + K[i, 1] * S[1, 0] + K[i, 2] * S[2, 0]
+        KS1 = K[i, 0] * S[0, 1] + K[i, 1] * S[1, 1] + K[i, 2] * S[2, 1]
+        KS2 = K[i, 0] * S[0, 2] + K[i, 1] * S[1, 2] + K[i, 2] * S[2, 2]
+        for j in range(i, n):
+            value = (P[i, j] - (K[i, 0] * PHT[j, 0] + K[i, 1] * PHT[j, 1] + K[i, 2] * PHT[j, 2])
+                     - (PHT[i, 0] * K[j, 0] + PHT[i, 1] * K[j, 1] + PHT[i, 2] * K[j, 2])
+                     + (KS0 * K[j, 0] + KS1 * K[j, 1] + KS2 * K[j, 2]))
+            P[i, j] = value
+            P[j, i] = value
+
+
+@njit(cache=True)
 def interval_matrices(R0, R1, dt, n, config):
     """F (n, n) and B (n, 9) over dt with ``R_global_imu`` R0, R1 at the ends::
 
@@ -337,13 +547,7 @@ def process_noise(dt, n, acceleration_variance, bias_variance, config):
     """
     p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
     Q = np.zeros((n, n))
-    a2 = config[C_ACC_DENSITY] * config[C_ACC_DENSITY]
-    extra = acceleration_variance
-    dt2 = dt * dt
-    pp = a2 * dt2 * dt + extra * dt2 * dt2 / 4.0
-    pv = a2 * dt2 + extra * dt2 * dt / 2.0
-    vv = a2 * dt + extra * dt2
-    bb = config[C_ACC_WALK] * config[C_ACC_WALK] * dt + bias_variance
+    pp, pv, vv, bb = noise_terms(dt, acceleration_variance, bias_variance, config)
     for axis in range(3):
         Q[p + axis, p + axis] = pp
         Q[p + axis, v + axis] = pv
@@ -378,16 +582,15 @@ def orientation_propagate(orientation, w0, w1, dt, extra, config):
     (:meth:`kfusion.kalman.orientation.OrientationTracker.propagate`)."""
     if orientation[14] == 0.0 or dt <= 0:
         return
-    rate = np.empty(3)
-    for i in range(3):
-        rate[i] = 0.5 * (w0[i] + w1[i]) - orientation[4 + i]
-    step = quaternion_exp(rate[0] * dt, rate[1] * dt, rate[2] * dt)
-    orientation[0:4] = normalise(quaternion_product(orientation[0:4], step))
+    rate0 = 0.5 * (w0[0] + w1[0]) - orientation[4]
+    rate1 = 0.5 * (w0[1] + w1[1]) - orientation[5]
+    rate2 = 0.5 * (w0[2] + w1[2]) - orientation[6]
+    rotate(orientation, rate0 * dt, rate1 * dt, rate2 * dt)
     scale_variance = config[C_GYRO_SCALE_VARIANCE]
     if scale_variance > 0.0:
-        rx = orientation[10] + rate[0] * dt
-        ry = orientation[11] + rate[1] * dt
-        rz = orientation[12] + rate[2] * dt
+        rx = orientation[10] + rate0 * dt
+        ry = orientation[11] + rate1 * dt
+        rz = orientation[12] + rate2 * dt
         orientation[10], orientation[11], orientation[12] = rx, ry, rz
         peak = max(orientation[13], scale_variance * (rx * rx + ry * ry + rz * rz))
         extra += peak - orientation[13]
@@ -431,7 +634,16 @@ def state_finite(x, P, orientation):
     """False when a propagation overflowed."""
     total = orientation[7] + orientation[8] + orientation[9] + (
         orientation[0] + orientation[1] + orientation[2] + orientation[3])
-    return math.isfinite(total) and np.isfinite(x).all() and np.isfinite(P).all()
+    if not math.isfinite(total):
+        return False
+    n = x.shape[0]
+    for i in range(n):
+        if not math.isfinite(x[i]):
+            return False
+        for j in range(n):
+            if not math.isfinite(P[i, j]):
+                return False
+    return True
 
 
 @njit(cache=True)
@@ -548,14 +760,13 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
                 0.0) / 36.0 + _motion_acceleration_variance(
                     squared_distance(f1, scalars[LOW_PASS:LOW_PASS + 3]), dt, scale,
                     _LOW_PASS_TAU)
-            F, B = interval_matrices(R0, R1, dt, n, config)
-            u = np.empty(9)
-            u[0:3] = f0
-            u[3:6] = f1
-            u[6:9] = config[C_GRAVITY:C_GRAVITY + 3]
-            Q = process_noise(dt, n, acceleration_variance, bias_variance, config)
-            covariance_predict(x, P, F, B, u, Q)
-            accumulate_transition(interval, F)
+            blocks = np.empty((2, 3, 3))
+            imu_blocks(R0, R1, dt, blocks)
+            control = np.empty(n)
+            control_term(R0, R1, dt, f0, f1, config, control)
+            pp, pv, vv, bb = noise_terms(dt, acceleration_variance, bias_variance, config)
+            structured_predict(x, P, dt, blocks, control, pp, pv, vv, bb, config,
+                               np.empty((2, n, n)), interval)
         if not state_finite(x, P, orientation):
             reset(x, P, orientation, scalars, counters)
     scalars[TIME] = t
@@ -752,16 +963,24 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
     if scalars[INITIALISED_FLAG] == 0.0:
         initialise(t, z, H, offset, x, P, scalars, config, counters)
         return _INITIALISED, math.nan, False
-    R = np.eye(3) * config[C_POSITION_NOISE] ** 2
-    y = z - offset - matvec(H, x)
-    S = matmul(matmul(H, P), H.T.copy()) + R
-    nis = math.inf
-    finite_S = np.isfinite(S).all() and np.isfinite(y).all()
-    if finite_S:
-        solved = np.linalg.solve(S, y)
-        value = y[0] * solved[0] + y[1] * solved[1] + y[2] * solved[2]
-        if math.isfinite(value):
-            nis = value
+    noise_variance = config[C_POSITION_NOISE] ** 2
+    y = np.empty(3)
+    for k in range(3):
+        total = 0.0
+        for j in range(n):
+            total += H[k, j] * x[j]
+        y[k] = (z[k] - offset[k]) - total
+    PHT = np.empty((n, 3))
+    S = np.empty((3, 3))
+    S_inverse = np.empty((3, 3))
+    innovation_covariance(P, H, noise_variance, PHT, S)
+    inverse3(S, S_inverse)
+    nis = 0.0
+    for k in range(3):
+        for m in range(3):
+            nis += y[k] * S_inverse[k, m] * y[m]
+    if not math.isfinite(nis):
+        nis = math.inf
     scalars[LAST_NIS] = nis
     y_squared = y[0] * y[0] + y[1] * y[1] + y[2] * y[2]
     if not (math.isfinite(nis) and math.isfinite(y_squared)):
@@ -786,7 +1005,10 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
                 P[v + i, v + i] += velocity_variance
     prior_x[:] = x
     prior_P[:, :] = P
-    covariance_update(x, P, z - offset, H, R)
+    if kind == _REACQUIRED and nis > config[C_GATE]:  # P inflated: S again
+        innovation_covariance(P, H, noise_variance, PHT, S)
+        inverse3(S, S_inverse)
+    position_update(x, P, y, S_inverse, S, PHT, np.empty((n, 3)))
     if has_orientation:
         orientation_correct(orientation, q_global_imu, config)
         scalars[LAST_ORIENTATION_FIX] = t
@@ -796,34 +1018,83 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
     return kind, nis, True
 
 
-@njit(cache=True)
-def filter_events(stream, index, imu_t, accelerometer, gyroscope, imu_finite, mocap_t,
-                  mocap_position, mocap_quaternion, visible, config, size, out_x, out_P,
-                  out_H, out_offset, out_outcome, out_nis, out_dead_reckoned, counters,
-                  out_x_predicted, out_P_predicted, out_transition):
-    """The whole batch loop over a recording's merged events (stream 0 IMU, 1 mocap; index
-    its row). Fills one row of the outputs per mocap row. Returns -1, or the event number
-    the kernel cannot handle (a non-increasing stamp that is not an identical duplicate):
-    the caller then runs the filterpy engine, whose error message names it.
+def packed_size(n: int) -> int:
+    """Length of a packed filter state with n states (:func:`state_views`)."""
+    return n + n * n + 15 + SCALAR_COUNT + n + n * n
 
-For the smoother (``out_transition`` with m rows; empty (0, n, n) arrays otherwise) it also
+
+@njit(cache=True)
+def state_views(state, n):
+    """Views ``(x (n,), P (n, n), orientation (15,), scalars, prior_x (n,), prior_P (n, n))``
+    into one packed state array (:func:`packed_size`): one argument per kernel call (numba
+    unboxes each array argument on every call) and one copy per snapshot."""
+    P_end = n + n * n
+    orientation_end = P_end + 15
+    scalars_end = orientation_end + SCALAR_COUNT
+    return (state[0:n], state[n:P_end].reshape((n, n)), state[P_end:orientation_end],
+            state[orientation_end:scalars_end], state[scalars_end:scalars_end + n],
+            state[scalars_end + n:scalars_end + n + n * n].reshape((n, n)))
+
+
+@njit(cache=True)
+def packed_predict(stamp, a0, a1, a2, g0, g1, g2, state, config, counters, n):
+    """:func:`predict_step` on a packed state (:func:`state_views`) for a sample its caller
+    validated (finite, stamp after the last: :meth:`kfusion.kalman.compiled_fusion.
+    CompiledFusion.predict`); the sample as six floats."""
+    x, P, orientation, scalars, _, _ = state_views(state, n)
+    f = np.empty(3)
+    omega = np.empty(3)
+    f[0], f[1], f[2] = a0, a1, a2
+    omega[0], omega[1], omega[2] = g0, g1, g2
+    predict_step(stamp, f, omega, x, P, orientation, scalars, config, counters,
+                 np.zeros((0, 0)))
+
+
+@njit(cache=True)
+def packed_update(t, visible, z, q_global_body, has_quaternion, state, config, counters, n):
+    """:func:`update_step` on a packed state (:func:`state_views`); returns (outcome code,
+    NIS)."""
+    x, P, orientation, scalars, prior_x, prior_P = state_views(state, n)
+    kind, nis, _ = update_step(t, visible, z, q_global_body, has_quaternion, x, P,
+                               orientation, scalars, config, counters, np.zeros((0, 0)),
+                               prior_x, prior_P)
+    return kind, nis
+
+
+def initial_state(n: int) -> NDArray[np.float64]:
+    """A new filter's packed state (:func:`state_views`): x = 0, P = I, orientation and
+    scalars as :func:`initial_orientation`, :func:`initial_scalars`."""
+    state = np.zeros(packed_size(n))
+    x, P, orientation, scalars, _, _ = state_views(state, n)
+    P[:, :] = np.eye(n)
+    orientation[:] = initial_orientation()
+    scalars[:] = initial_scalars()
+    return state
+
+
+@njit(cache=True)
+def filter_events(stream, index, begin, end, imu_t, accelerometer, gyroscope, imu_finite,
+                  mocap_t, mocap_position, mocap_quaternion, visible, config, state, counters,
+                  row_offset, out_x, out_P, out_H, out_offset, out_outcome, out_nis,
+                  out_dead_reckoned, out_x_predicted, out_P_predicted, out_transition,
+                  save_every, saved_states, saved_events):
+    """The batch loop over merged events ``begin`` to ``end`` - 1 (stream 0 IMU, 1 mocap; index
+    its row) from the packed ``state`` (:func:`state_views`, updated in place). Fills one row
+    of the outputs per mocap row (row ``r`` at ``r - row_offset``). Returns -1, or the event
+    number the kernel cannot handle (a non-increasing stamp that is not an identical
+    duplicate): the caller then runs the filterpy engine, whose error message names it.
+
+For the smoother (``out_transition`` with rows; empty (0, n, n) arrays otherwise) it also
 keeps per row the prediction the row's fix was fused into (the filtered state where none
-was) and the product of the transitions since the previous row."""
-    x = np.zeros(size)
-    P = np.eye(size)
-    orientation = np.zeros(15)
-    orientation[0] = 1.0
-    scalars = np.full(SCALAR_COUNT, math.nan)
-    scalars[ACCELEROMETER_EXTRA] = 0.0
-    scalars[GYROSCOPE_EXTRA] = 0.0
-    scalars[INITIALISED_FLAG] = 0.0
-    scalars[LAST_FRAME_FUSED] = 0.0
-    scalars[OUTAGE_SINCE_FIX] = 0.0
+was) and the product of the transitions since the previous row. With ``save_every`` > 0 it
+saves the state after every ``save_every``-th row (rows ``save_every - 1``, ``2 save_every -
+1``, ...) in ``saved_states`` and the next event in ``saved_events``: the smoother's backward
+pass runs the loop again from there (:func:`smooth_rows`)."""
+    size = out_x.shape[1]
+    x, P, orientation, scalars, prior_x, prior_P = state_views(state, size)
     smoothing = out_transition.shape[0] > 0
     interval = np.eye(size) if smoothing else np.zeros((0, 0))
-    prior_x = np.zeros(size)
-    prior_P = np.zeros((size, size))
-    for event in range(stream.shape[0]):
+    for event in range(begin, end):
         row = index[event]
         if stream[event] == 0:
             stamp = imu_t[row]
@@ -851,23 +1122,95 @@ was) and the product of the transitions since the previous row."""
                                        mocap_quaternion[row], True, x, P, orientation,
                                        scalars, config, counters, interval, prior_x,
                                        prior_P)
-        out_outcome[row] = kind
-        out_nis[row] = nis
-        out_dead_reckoned[row] = t <= dead_reckoning_until(scalars, config)
+        out = row - row_offset
+        out_outcome[out] = kind
+        out_nis[out] = nis
+        out_dead_reckoned[out] = t <= dead_reckoning_until(scalars, config)
         if scalars[INITIALISED_FLAG] != 0.0:
-            out_x[row] = x
-            out_P[row] = P
+            out_x[out] = x
+            out_P[out] = P
             H, offset = output_map(orientation[0:4].copy(), size, config)
-            out_H[row] = H
-            out_offset[row] = offset
+            out_H[out] = H
+            out_offset[out] = offset
             if smoothing:
-                out_x_predicted[row] = prior_x if fused else x
-                out_P_predicted[row] = prior_P if fused else P
-                out_transition[row] = interval
+                out_x_predicted[out] = prior_x if fused else x
+                out_P_predicted[out] = prior_P if fused else P
+                out_transition[out] = interval
         if smoothing:
             interval[:, :] = np.eye(size)
+        if save_every > 0 and (row + 1) % save_every == 0:
+            saved_states[(row + 1) // save_every - 1] = state
+            saved_events[(row + 1) // save_every - 1] = event + 1
     return -1
 
+
+@njit(cache=True)
+def rts_step(x_filtered, P_filtered, x_next, P_next, x_predicted, P_predicted, transition):
+    """One RTS backward step (:func:`kfusion.kalman.smoother.rts_backward`)::
+
+        C_k   = P_k Phi_{k+1}^T P_{k+1|k}^-1    (solved: C^T = P_{k+1|k}^-1 Phi P_k)
+        x_k^s = x_k + C_k (x_{k+1}^s - x_{k+1|k})
+        P_k^s = P_k + C_k (P_{k+1}^s - P_{k+1|k}) C_k^T,  symmetrised
+    Returns (x_k^s, P_k^s)."""
+    C = np.linalg.solve(P_predicted, matmul(transition, P_filtered)).T.copy()
+    x = x_filtered + matvec(C, x_next - x_predicted)
+    P = P_filtered + matmul(matmul(C, P_next - P_predicted), C.T.copy())
+    return x, 0.5 * (P + P.T)
+
+
+@njit(cache=True)
+def smooth_rows(stream, index, row_event, imu_t, accelerometer, gyroscope, imu_finite,
+                mocap_t, mocap_position, mocap_quaternion, visible, config, first_state,
+                save_every, saved_states, saved_events, segment, x_filtered, P_filtered,
+                x_smoothed, P_smoothed, counters):
+    """The RTS backward pass (:func:`rts_step`) over rows m-1..0 without the forward pass's
+    per-row predictions and transitions: blocks of ``save_every`` rows, last block first, run
+    the forward loop again (:func:`filter_events`, the same arithmetic: the same bits) from
+    the state saved before the block (``first_state`` for the first block) to get them. Row k
+    is smoothed from row k+1 where both are in one ``segment`` (m,) (-1: no state, left NaN);
+    the last row of a segment keeps its filtered state. ``row_event`` (m,): each row's event.
+    Fills ``x_smoothed`` (m, n), ``P_smoothed`` (m, n, n); ``counters``: scratch."""
+    m, n = x_filtered.shape
+    x_predicted = np.full((save_every, n), math.nan)
+    P_predicted = np.full((save_every, n, n), math.nan)
+    transitions = np.full((save_every, n, n), math.nan)
+    scratch_x = np.empty((save_every, n))
+    scratch_P = np.empty((save_every, n, n))
+    scratch_H = np.empty((save_every, 3, n))
+    scratch_offset = np.empty((save_every, 3))
+    scratch_outcome = np.empty(save_every, dtype=np.int64)
+    scratch_nis = np.empty(save_every)
+    scratch_dead_reckoned = np.empty(save_every, dtype=np.bool_)
+    no_states = np.zeros((0, 0))
+    no_events = np.zeros(0, dtype=np.int64)
+    for k in range(m):
+        if segment[k] >= 0 and (k + 1 == m or segment[k + 1] != segment[k]):
+            x_smoothed[k] = x_filtered[k]
+            P_smoothed[k] = P_filtered[k]
+    blocks = (m + save_every - 1) // save_every
+    for block in range(blocks - 1, -1, -1):
+        first_row = block * save_every
+        last_row = min(m, first_row + save_every) - 1
+        if block == 0:
+            state = first_state.copy()
+            begin = 0
+        else:
+            state = saved_states[block - 1].copy()
+            begin = saved_events[block - 1]
+        x_predicted[:] = math.nan
+        filter_events(stream, index, begin, row_event[last_row] + 1, imu_t, accelerometer,
+                      gyroscope, imu_finite, mocap_t, mocap_position, mocap_quaternion,
+                      visible, config, state, counters, first_row, scratch_x, scratch_P,
+                      scratch_H, scratch_offset, scratch_outcome, scratch_nis,
+                      scratch_dead_reckoned, x_predicted, P_predicted, transitions, 0,
+                      no_states, no_events)
+        for k in range(last_row - 1, first_row - 2, -1):
+            if k < 0 or segment[k] < 0 or segment[k + 1] != segment[k]:
+                continue
+            j = k + 1 - first_row
+            x_smoothed[k], P_smoothed[k] = rts_step(
+                x_filtered[k], P_filtered[k], x_smoothed[k + 1], P_smoothed[k + 1],
+                x_predicted[j], P_predicted[j], transitions[j])
 
 
 @njit(cache=True)
@@ -925,26 +1268,6 @@ def extrapolate(t, x, P, orientation, scalars, config):
     return x_next, 0.5 * (P_next + P_next.T), scratch[0:4].copy()
 
 
-@njit(cache=True)
-def rts_backward(x_filtered, P_filtered, x_predicted, P_predicted, transitions):
-    """RTS backward pass over rows 0..m-1 (:func:`kfusion.kalman.smoother.rts_backward`)::
-
-        C_k   = P_k Phi_{k+1}^T P_{k+1|k}^-1    (solved: C^T = P_{k+1|k}^-1 Phi P_k)
-        x_k^s = x_k + C_k (x_{k+1}^s - x_{k+1|k})
-        P_k^s = P_k + C_k (P_{k+1}^s - P_{k+1|k}) C_k^T,  symmetrised
-    Shapes (m, n) and (m, n, n); returns the smoothed (x, P)."""
-    x_smoothed = x_filtered.copy()
-    P_smoothed = P_filtered.copy()
-    for k in range(x_filtered.shape[0] - 2, -1, -1):
-        C = np.linalg.solve(P_predicted[k + 1], matmul(transitions[k + 1], P_filtered[k])).T
-        C = C.copy()
-        x_smoothed[k] = x_filtered[k] + matvec(C, x_smoothed[k + 1] - x_predicted[k + 1])
-        P = P_filtered[k] + matmul(matmul(C, P_smoothed[k + 1] - P_predicted[k + 1]),
-                                   C.T.copy())
-        P_smoothed[k] = 0.5 * (P + P.T)
-    return x_smoothed, P_smoothed
-
-
 # ---------------------------------------------------------------------------------------------
 # The batch driver's side: arrays in, per-row arrays out
 # ---------------------------------------------------------------------------------------------
@@ -968,10 +1291,9 @@ class KernelRun:
         self.dead_reckoned = dead_reckoned
         self.counters = counters
         self.failed_event = failed_event
-        # smoother support (filled by run_kernel(smoothing=True))
-        self.x_predicted = np.zeros((0, x.shape[1]))
-        self.P_predicted = np.zeros((0, x.shape[1], x.shape[1]))
-        self.transitions = np.zeros((0, x.shape[1], x.shape[1]))
+        # smoother support (run_kernel(smoothing=True)): the kernel inputs, configuration,
+        # first state and the states saved every SAVE_EVERY rows, for smooth_run
+        self.replay: tuple = ()
 
 
 def _kernel_array(values: NDArray[np.generic], dtype: type) -> NDArray[np.generic]:
@@ -980,20 +1302,29 @@ def _kernel_array(values: NDArray[np.generic], dtype: type) -> NDArray[np.generi
     return np.require(values, dtype=dtype, requirements=["C", "W"])
 
 
+SAVE_EVERY: Final = 1024
+"""Rows between the states the forward pass saves for the smoother's backward pass
+(:func:`smooth_rows`): per row it keeps 1/SAVE_EVERY of a packed state."""
+
+
 def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
                gyroscope: NDArray[np.float64], mocap_t: NDArray[np.float64],
                mocap_position: NDArray[np.float64], mocap_quaternion: NDArray[np.float64],
-               visible: NDArray[np.bool_], events: list[tuple[float, int, int]],
+               visible: NDArray[np.bool_], stream: NDArray[np.int64], index: NDArray[np.int64],
                config: NDArray[np.float64], size: int, smoothing: bool = False) -> KernelRun:
-    """Run :func:`filter_events` over merged ``events`` (``(t, stream, row)``,
-    :func:`kfusion.kalman.events.merge_events`). Shapes: IMU (n,), (n, 3), (n, 3); mocap (m,),
-    (m, 3), (m, 4), (m,); ``config`` from :func:`pack_config`; n states ``size``."""
+    """Run :func:`filter_events` over merged events (``stream``, ``index`` (e,) each:
+    :func:`kfusion.kalman.events.merge_order`). Shapes: IMU (n,), (n, 3), (n, 3); mocap (m,),
+    (m, 3), (m, 4), (m,); ``config`` from :func:`pack_config`; n states ``size``. With
+    ``smoothing`` the run keeps what :func:`smooth_run` needs (the inputs and the states
+    saved every :data:`SAVE_EVERY` rows)."""
     rows = len(mocap_t)
-    order = np.array([(stream, row) for _, stream, row in events], dtype=np.int64
-                     ).reshape(-1, 2)
-    acceleration_rows = _kernel_array(accelerometer, float)
-    rate_rows = _kernel_array(gyroscope, float)
-    finite = np.isfinite(accelerometer).all(axis=1) & np.isfinite(gyroscope).all(axis=1)
+    inputs = (_kernel_array(stream, np.int64), _kernel_array(index, np.int64),
+              _kernel_array(imu_t, float), _kernel_array(accelerometer, float),
+              _kernel_array(gyroscope, float), None, _kernel_array(mocap_t, float),
+              _kernel_array(mocap_position, float), _kernel_array(mocap_quaternion, float),
+              _kernel_array(visible, bool))
+    finite = np.isfinite(inputs[3]).all(axis=1) & np.isfinite(inputs[4]).all(axis=1)
+    inputs = inputs[:5] + (finite,) + inputs[6:]
     out_x = np.full((rows, size), np.nan)
     out_P = np.full((rows, size, size), np.nan)
     out_H = np.zeros((rows, 3, size))
@@ -1002,20 +1333,76 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     out_nis = np.full(rows, np.nan)
     out_dead_reckoned = np.zeros(rows, dtype=bool)
     counters = np.zeros(len(COUNTER_INDEX), dtype=np.int64)
-    kept = rows if smoothing else 0
-    x_predicted = np.full((kept, size), np.nan)
-    P_predicted = np.full((kept, size, size), np.nan)
-    transitions = np.full((kept, size, size), np.nan)
+    no_rows = np.zeros((0, size, size))
+    first_state = initial_state(size)
+    state = first_state.copy()
+    save_every = SAVE_EVERY if smoothing else 0
+    saved = rows // SAVE_EVERY if smoothing else 0
+    saved_states = np.zeros((saved, len(state)))
+    saved_events = np.zeros(saved, dtype=np.int64)
     failed = filter_events(
-        _kernel_array(order[:, 0], np.int64), _kernel_array(order[:, 1], np.int64),
-        _kernel_array(imu_t, float), acceleration_rows, rate_rows, finite,
-        _kernel_array(mocap_t, float), _kernel_array(mocap_position, float),
-        _kernel_array(mocap_quaternion, float), _kernel_array(visible, bool), config, size,
-        out_x, out_P, out_H, out_offset, out_outcome, out_nis, out_dead_reckoned, counters,
-        x_predicted, P_predicted, transitions)
-    names = np.array(OUTCOME_NAMES + ("",), dtype=object)
-    run = KernelRun(out_x, out_P, out_H, out_offset, names[out_outcome].astype(str), out_nis,
+        inputs[0], inputs[1], 0, len(stream), *inputs[2:], config, state, counters, 0, out_x,
+        out_P, out_H, out_offset, out_outcome, out_nis, out_dead_reckoned,
+        np.zeros((0, size)), no_rows, no_rows, save_every, saved_states, saved_events)
+    run = KernelRun(out_x, out_P, out_H, out_offset, _OUTCOME_LOOKUP[out_outcome], out_nis,
                     out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(), strict=True)),
                     int(failed))
-    run.x_predicted, run.P_predicted, run.transitions = x_predicted, P_predicted, transitions
+    if smoothing:
+        run.replay = (inputs, config, first_state, saved_states, saved_events)
     return run
+
+
+def smooth_run(run: KernelRun, segments: list[tuple[int, int]]
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Smoothed (x (m, n), P (m, n, n)) of a forward run made with ``smoothing``
+    (:func:`smooth_rows`), each of ``segments`` ((first, stop) row ranges) smoothed on its own
+    (NaN elsewhere)."""
+    inputs, config, first_state, saved_states, saved_events = run.replay
+    m, n = run.x.shape
+    segment = np.full(m, -1, dtype=np.int64)
+    for number, (first, stop) in enumerate(segments):
+        segment[first:stop] = number
+    row_event = np.flatnonzero(inputs[0] == 1).astype(np.int64)
+    x_smoothed = np.full((m, n), np.nan)
+    P_smoothed = np.full((m, n, n), np.nan)
+    if m:
+        smooth_rows(inputs[0], inputs[1], row_event, *inputs[2:], config,  # type: ignore[call-arg]
+                    first_state, SAVE_EVERY, saved_states, saved_events, segment, run.x, run.P,
+                    x_smoothed, P_smoothed, np.zeros(len(COUNTER_INDEX), dtype=np.int64))
+    return x_smoothed, P_smoothed
+
+
+def saved_bytes_per_row(rows: int, size: int) -> float:
+    """Bytes per row the compiled smoother keeps beyond its filtered and smoothed (x, P): the
+    states saved every :data:`SAVE_EVERY` rows (and their event numbers)."""
+    return (rows // SAVE_EVERY) * (packed_size(size) + 1) * 8 / max(rows, 1)
+
+
+_OUTCOME_LOOKUP: Final = np.array(OUTCOME_NAMES + ("",))
+"""Outcome names by code (-1, the last: a row the kernel did not reach)."""
+
+
+@njit(cache=True)
+def status_codes(time_since_fix, fused, dead_reckoned, fix_timeout_s, max_bridge_s):
+    """:func:`kfusion.streamhealth.tracking_status` per row as codes into
+    :data:`STATUS_NAMES` (the rule, row by row, for the batch driver's rows;
+    :func:`kfusion.kalman.batch.row_statuses` is the reference)::
+
+        tracked  if fused and time_since_fix <= fix_timeout_s
+        lost     if not time_since_fix <= max_bridge_s, or not dead_reckoned
+        bridged  otherwise
+    """
+    codes = np.empty(time_since_fix.shape[0], dtype=np.int64)
+    for row in range(time_since_fix.shape[0]):
+        since = time_since_fix[row]
+        if fused[row] and since <= fix_timeout_s:
+            codes[row] = 0
+        elif not since <= max_bridge_s or not dead_reckoned[row]:
+            codes[row] = 2
+        else:
+            codes[row] = 1
+    return codes
+
+
+STATUS_NAMES: Final = np.array([TRACKED, BRIDGED, LOST])
+"""Status names by :func:`status_codes` code."""

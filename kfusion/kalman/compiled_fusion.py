@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -39,10 +39,7 @@ class CompiledSnapshot:
     """Everything :meth:`CompiledFusion.restore` needs to continue a run bit-exactly."""
 
     configuration: tuple[float, ...]
-    x: NDArray[np.float64]
-    P: NDArray[np.float64]
-    orientation: NDArray[np.float64]
-    scalars: NDArray[np.float64]
+    state: NDArray[np.float64]  # packed (kfusion.kalman.compiled.state_views)
     counters: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
@@ -59,15 +56,18 @@ class CompiledFusion:
         self.size = reference.size
         self._config = reference.kernel_config()
         self._configuration = tuple(self._config.tolist())
-        self._x = np.zeros(self.size)
-        self._P = np.eye(self.size)
-        self._orientation = compiled.initial_orientation()
-        self._scalars = compiled.initial_scalars()
+        # the whole state in one array (one kernel argument, one copy per snapshot); the
+        # attributes below are views into it
+        self._state = np.zeros(compiled.packed_size(self.size))
+        (self._x, self._P, self._orientation, self._scalars, self._prior_x,
+         self._prior_P) = compiled.state_views(self._state, self.size)
+        self._P[:, :] = np.eye(self.size)
+        self._orientation[:] = compiled.initial_orientation()
+        self._scalars[:] = compiled.initial_scalars()
         self._counters = np.zeros(len(compiled.COUNTER_INDEX), dtype=np.int64)
-        self._no_interval = np.zeros((0, 0))
-        self._prior_x = np.zeros(self.size)
-        self._prior_P = np.zeros((self.size, self.size))
         self._no_quaternion = np.zeros(4)
+        self._accelerometer_range = float(params.accelerometer_range)
+        self._gyroscope_range = float(params.gyroscope_range)
         # read-only view for the Tracker's finiteness check (the kernels write in place)
         self._kf = SimpleNamespace(x=self._x, P=self._P)
 
@@ -111,39 +111,54 @@ class CompiledFusion:
 
     def predict(self, t: float, accelerometer: ArrayLike, gyroscope: ArrayLike) -> str:
         """:meth:`KalmanFusion.predict` (same checks, outcomes and errors)."""
-        t, f, omega, finite = checked_sample(t, accelerometer, gyroscope)
+        f_values, omega_values = _three_floats(accelerometer), _three_floats(gyroscope)
+        if type(t) is float and math.isfinite(t) and f_values is not None \
+                and omega_values is not None:  # the common types, checked cheaply
+            values = f_values + omega_values
+            finite = all(map(math.isfinite, values))
+        else:  # every other input: the full checks and their messages
+            t, f, omega, finite = checked_sample(t, accelerometer, gyroscope)
+            values = f.tolist() + omega.tolist()
         if not finite:
-            self._counters[compiled.COUNTER_INDEX["imu_rejected"]] += 1
+            self._counters[_IMU_REJECTED] += 1
             return REJECTED
-        stamp = self._scalars[compiled.IMU_STAMP]
+        a0, a1, a2, g0, g1, g2 = values
+        stamp = float(self._scalars[compiled.IMU_STAMP])
         if not math.isnan(stamp) and t <= stamp:
             held = self._scalars
+            f, omega = np.array(values[:3]), np.array(values[3:])
             if (t == stamp and np.array_equal(
-                    np.clip(f, -self.params.accelerometer_range, self.params.accelerometer_range),
+                    np.clip(f, -self._accelerometer_range, self._accelerometer_range),
                     held[compiled.ACCELEROMETER:compiled.ACCELEROMETER + 3])
-                    and np.array_equal(np.clip(omega, -self.params.gyroscope_range,
-                                               self.params.gyroscope_range),
+                    and np.array_equal(np.clip(omega, -self._gyroscope_range,
+                                               self._gyroscope_range),
                                        held[compiled.GYROSCOPE:compiled.GYROSCOPE + 3])):
-                self._counters[compiled.COUNTER_INDEX["imu_duplicates"]] += 1
+                self._counters[_IMU_DUPLICATES] += 1
                 return DUPLICATE
             raise ValueError(f"predict: timestamp {t!r} s is not after the previous IMU sample "
                              f"({stamp!r} s); expected strictly increasing times")
-        rejected = self._counters[compiled.COUNTER_INDEX["imu_rejected"]]
-        compiled.predict_step(t, f.copy(), omega.copy(), self._x, self._P, self._orientation,
-                              self._scalars, self._config, self._counters, self._no_interval)
-        if self._counters[compiled.COUNTER_INDEX["imu_rejected"]] != rejected:
-            return REJECTED
-        return PREDICTED
+        return self.predict_valid(t, a0, a1, a2, g0, g1, g2)
+
+    def predict_valid(self, t: float, a0: float, a1: float, a2: float, g0: float, g1: float,
+                      g2: float) -> str:
+        """:meth:`predict` of a sample its caller has checked (the checks of :meth:`predict`:
+        t a finite float after the previous sample's stamp; specific force a0..a2 m/s^2 and
+        rate g0..g2 rad/s finite floats): one kernel call (the :class:`kfusion.tracker.Tracker`
+        validates every sample before it fuses it)."""
+        counters = self._counters
+        rejected = counters[_IMU_REJECTED]
+        compiled.packed_predict(t, a0, a1, a2, g0, g1, g2, self._state, self._config,
+                                counters, self.size)
+        return REJECTED if counters[_IMU_REJECTED] != rejected else PREDICTED
 
     def update(self, t: float, position: ArrayLike | None,
                quaternion: ArrayLike | None = None) -> UpdateOutcome:
         """:meth:`KalmanFusion.update` (same checks, outcomes and errors)."""
         t, z, q_global_body = checked_frame(t, self.time, position, quaternion)
-        kind, nis, _ = compiled.update_step(
-            t, z is not None, np.zeros(3) if z is None else z.copy(),
-            self._no_quaternion if q_global_body is None else q_global_body.copy(),
-            q_global_body is not None, self._x, self._P, self._orientation, self._scalars,
-            self._config, self._counters, self._no_interval, self._prior_x, self._prior_P)
+        kind, nis = compiled.packed_update(
+            t, z is not None, _NO_POSITION if z is None else np.ascontiguousarray(z),
+            self._no_quaternion if q_global_body is None else np.ascontiguousarray(q_global_body),
+            q_global_body is not None, self._state, self._config, self._counters, self.size)
         return UpdateOutcome(t, compiled.OUTCOME_NAMES[kind], float(nis))
 
     def estimate(self, t: float | None = None) -> FilterEstimate:
@@ -193,9 +208,7 @@ class CompiledFusion:
 
     def snapshot(self) -> CompiledSnapshot:
         """A copy of the whole state; :meth:`restore` continues from it bit-exactly."""
-        return CompiledSnapshot(self._configuration, self._x.copy(), self._P.copy(),
-                                self._orientation.copy(), self._scalars.copy(),
-                                self._counters.copy())
+        return CompiledSnapshot(self._configuration, self._state.copy(), self._counters.copy())
 
     def restore(self, snapshot: CompiledSnapshot) -> None:
         """Continue from ``snapshot`` (taken from a filter with the same configuration)."""
@@ -205,11 +218,28 @@ class CompiledFusion:
         if snapshot.configuration != self._configuration:
             raise ValueError("restore: the snapshot was taken from a filter with other "
                              "parameters, imu_to_body, gravity or lever_arm; expected the same")
-        self._x[:] = snapshot.x
-        self._P[:, :] = snapshot.P
-        self._orientation[:] = snapshot.orientation
-        self._scalars[:] = snapshot.scalars
+        self._state[:] = snapshot.state
         self._counters[:] = snapshot.counters
+
+
+_IMU_REJECTED: Final = compiled.COUNTER_INDEX["imu_rejected"]
+_IMU_DUPLICATES: Final = compiled.COUNTER_INDEX["imu_duplicates"]
+_NO_POSITION: Final = np.zeros(3)  # read by no kernel: an occluded frame's z
+
+
+def _three_floats(value: object) -> list[float] | None:
+    """``value``'s entries as floats when it is a float64 array of shape (3,) or a tuple or list
+    of 3 floats (what the Tracker, the monitor and the batch driver pass), else None (the caller
+    then runs the full checks)."""
+    kind = type(value)
+    if kind is np.ndarray:
+        array: NDArray[np.float64] = value  # type: ignore[assignment]
+        return array.tolist() if array.dtype == np.float64 and array.shape == (3,) else None
+    if kind is tuple or kind is list:
+        items: Any = value
+        if len(items) == 3 and all(type(item) is float for item in items):
+            return list(items)
+    return None
 
 
 def _optional(value: Any) -> float | None:

@@ -69,6 +69,29 @@ def event_key(time: float, stream: int, latency_s: float = 0.0) -> tuple[float, 
     return time, MOCAP_STREAM
 
 
+def merge_order(imu_stamps: NDArray[np.float64] | Sequence[float],
+                mocap_times: NDArray[np.float64] | Sequence[float], latency_s: float = 0.0
+                ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """Every IMU sample and mocap frame of a recording in fusion order, as arrays: ``(t_event,
+    stream, index)`` each (n + m,), sorted by :func:`event_key` (a stable sort: ``np.lexsort``
+    on time, then stream). Stamps must not be NaN (the order of a NaN is undefined).
+
+    Args:
+        imu_stamps: (n,) IMU stamps on the mocap clock, s, increasing.
+        mocap_times: (m,) mocap frame times, s, increasing.
+        latency_s: IMU latency, s.
+    """
+    imu = imu_event_time(np.asarray(imu_stamps, dtype=float), latency_s)
+    mocap = np.asarray(mocap_times, dtype=float)
+    times = np.concatenate([imu, mocap])
+    stream = np.concatenate([np.full(len(imu), IMU_STREAM, dtype=np.int64),
+                             np.full(len(mocap), MOCAP_STREAM, dtype=np.int64)])
+    index = np.concatenate([np.arange(len(imu), dtype=np.int64),
+                            np.arange(len(mocap), dtype=np.int64)])
+    order = np.lexsort((stream, times))
+    return times[order], stream[order], index[order]
+
+
 def merge_events(imu_stamps: Sequence[float], mocap_times: Sequence[float],
                  latency_s: float = 0.0) -> list[tuple[float, int, int]]:
     """Every IMU sample and mocap frame of a recording in fusion order.
@@ -80,8 +103,14 @@ def merge_events(imu_stamps: Sequence[float], mocap_times: Sequence[float],
 
     Returns:
         ``(t_event, stream, index)`` for the n + m events, sorted by :func:`event_key`; index is
-        the row in its stream.
+        the row in its stream (:func:`merge_order`; a NaN stamp, which has no place in the
+        order, stays where a stable sort by that key leaves it, so the filter meets it and
+        names it).
     """
+    if not (np.isnan(np.asarray(imu_stamps, dtype=float)).any()
+            or np.isnan(np.asarray(mocap_times, dtype=float)).any()):
+        times, stream, index = merge_order(imu_stamps, mocap_times, latency_s)
+        return list(zip(times.tolist(), stream.tolist(), index.tolist(), strict=True))
     events = [(*event_key(float(t), IMU_STREAM, latency_s), index)
               for index, t in enumerate(imu_stamps)]
     events += [(*event_key(float(t), MOCAP_STREAM), index)

@@ -259,6 +259,8 @@ class KalmanSnapshot:
 
 
 def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (size,):
+        return value  # the common case, cheaply
     refuse_masked(name, value)
     array = np.asarray(value, dtype=float)
     if array.shape != (size,):
@@ -276,7 +278,8 @@ def checked_sample(t: float, accelerometer: ArrayLike, gyroscope: ArrayLike
     gyroscope_array = _vector(gyroscope, 3, "gyroscope")
     if not math.isfinite(t):
         raise ValueError(f"predict: expected a finite time in s, got {t!r}")
-    finite = bool(np.isfinite(accelerometer_array).all() and np.isfinite(gyroscope_array).all())
+    # math.isfinite over the six values: a tenth of np.isfinite(...).all()'s cost at IMU rate
+    finite = all(map(math.isfinite, accelerometer_array.tolist() + gyroscope_array.tolist()))
     return t, accelerometer_array, gyroscope_array, finite
 
 

@@ -180,19 +180,21 @@ def initialised_segments(outcome: NDArray[np.str_], initialised: NDArray[np.bool
 
 
 def smoother_status(t: NDArray[np.float64], fixed: NDArray[np.bool_], max_bridge_s: float,
-                    dead_reckoned: NDArray[np.bool_] | None = None) -> NDArray[np.str_]:
+                    dead_reckoned: NDArray[np.bool_] | None = None, *,
+                    engine: str = "filterpy") -> NDArray[np.str_]:
     """Smoother status per row: the status rule (:func:`kfusion.streamhealth.tracking_status`)
     with the distance to the nearest used fix either side as the time since the fix (the
     smoother has the fixes after a row too): ``tracked`` at used fixes; ``lost`` before the
     first fix (the forward pass had no state there) and in a gap the IMU did not cover (not
     ``dead_reckoned``; None: every row is); in a gap between fixes ``bridged`` where the
     nearest fix is at most ``max_bridge_s`` away (else ``lost``); after the last fix
-    ``bridged`` up to ``max_bridge_s`` after it, then ``lost``."""
+    ``bridged`` up to ``max_bridge_s`` after it, then ``lost``. ``engine``: that of
+    :func:`kfusion.kalman.batch.row_statuses`."""
     t = np.asarray(t, dtype=float)
     fixed = np.asarray(fixed, dtype=bool)
     last = np.maximum.accumulate(np.where(fixed, t, -np.inf))
     distance = np.where(np.isfinite(last), nearest_fix_distance(t, fixed), np.inf)
-    return row_statuses(distance, fixed, max_bridge_s, dead_reckoned)
+    return row_statuses(distance, fixed, max_bridge_s, dead_reckoned, engine=engine)
 
 
 def nearest_fix_distance(t: NDArray[np.float64], fixed: NDArray[np.bool_]
@@ -283,7 +285,9 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     ``filtered`` rows there are more cautious than :func:`kfusion.kalman.run_filter`'s).
     ``engine``: ``compiled`` runs both passes as numba kernels
     (:func:`kfusion.kalman.compiled.filter_events`, :func:`~kfusion.kalman.compiled.
-    rts_backward`) when there is no monitor (which watches a filter event by event);
+    smooth_rows`: the backward pass recomputes the forward pass's per-row predictions and
+    transitions block by block instead of keeping them) when there is no monitor (which
+    watches a filter event by event);
     ``filterpy`` runs :class:`KalmanFusion` and the numpy backward pass; marker-level fusion
     runs on filterpy (:func:`kfusion.kalman.batch.measurement_engine`)."""
     check_engine(engine)
@@ -293,49 +297,54 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     watcher = make_monitor(recording, params, monitor)
     m = len(recording.mocap)
     size = fusion.size
-    recorder = _RowRecorder(fusion, m, watcher)
-    x_predicted = np.full((m, size), np.nan)
-    P_predicted = np.full((m, size, size), np.nan)
-    transitions = np.full((m, size, size), np.nan)
-    fusion._interval = np.eye(size)
-    backward = rts_backward
     rows = (compiled_rows(recording, fusion, smoothing=True)
             if engine == "compiled" and watcher is None else None)
     if rows is not None:
+        # the compiled backward pass recomputes the per-row predictions and transitions block
+        # by block from states the forward pass saved (kfusion.kalman.compiled.smooth_rows)
         from kfusion.kalman import compiled
 
         recorder, kernel_run = rows
-        x_predicted, P_predicted = kernel_run.x_predicted, kernel_run.P_predicted
-        transitions = kernel_run.transitions
-        backward = compiled.rts_backward
-
-    def on_row(row: int, outcome: UpdateOutcome) -> None:
-        recorder.record(row, outcome)
-        if fusion.initialised:
-            prior = fusion._prior
-            if prior is None:  # nothing fused at this row: the prediction is the state
-                prior = (recorder.x[row], recorder.P[row])
-            x_predicted[row], P_predicted[row] = prior
-            transitions[row] = fusion._interval
+        x_filtered, P_filtered = recorder.x, recorder.P
+        x_smoothed, P_smoothed = compiled.smooth_run(
+            kernel_run, initialised_segments(recorder.outcome.astype(str),
+                                             recorder.initialised))
+    else:
+        recorder = _RowRecorder(fusion, m, watcher)
+        x_predicted = np.full((m, size), np.nan)
+        P_predicted = np.full((m, size, size), np.nan)
+        transitions = np.full((m, size, size), np.nan)
         fusion._interval = np.eye(size)
 
-    if rows is None:
+        def on_row(row: int, outcome: UpdateOutcome) -> None:
+            recorder.record(row, outcome)
+            if fusion.initialised:
+                prior = fusion._prior
+                if prior is None:  # nothing fused at this row: the prediction is the state
+                    prior = (recorder.x[row], recorder.P[row])
+                x_predicted[row], P_predicted[row] = prior
+                transitions[row] = fusion._interval
+            fusion._interval = np.eye(size)
+
         process_recording(recording, fusion, on_row, watcher, measurement, offline=True)
         recorder.finish()
-    x_filtered, P_filtered = recorder.x, recorder.P
-    x_smoothed = np.full((m, size), np.nan)
-    P_smoothed = np.full((m, size, size), np.nan)
-    for first, stop in initialised_segments(recorder.outcome.astype(str),
-                                            recorder.initialised):
-        x_smoothed[first:stop], P_smoothed[first:stop] = backward(
-            x_filtered[first:stop], P_filtered[first:stop], x_predicted[first:stop],
-            P_predicted[first:stop], transitions[first:stop])
+        x_filtered, P_filtered = recorder.x, recorder.P
+        x_smoothed = np.full((m, size), np.nan)
+        P_smoothed = np.full((m, size, size), np.nan)
+        for first, stop in initialised_segments(recorder.outcome.astype(str),
+                                                recorder.initialised):
+            x_smoothed[first:stop], P_smoothed[first:stop] = rts_backward(
+                x_filtered[first:stop], P_filtered[first:stop], x_predicted[first:stop],
+                P_predicted[first:stop], transitions[first:stop])
     t = np.array(recording.mocap.t)
     fixed = recorder.fixed
+    status_engine = "compiled" if rows is not None else "filterpy"
     filtered_status, since = status_from_fixes(t, fixed, recorder.initialised,
-                                               params.max_bridge_s, recorder.dead_reckoned)
+                                               params.max_bridge_s, recorder.dead_reckoned,
+                                               engine=status_engine)
     # a gap the IMU did not cover (the forward pass's no-IMU rows) is lost for the smoother too
-    smoothed_status = smoother_status(t, fixed, params.max_bridge_s, recorder.dead_reckoned)
+    smoothed_status = smoother_status(t, fixed, params.max_bridge_s, recorder.dead_reckoned,
+                                      engine=status_engine)
 
     position, variance = (compiled_points(recorder) if rows is not None else
                           point_estimates(x_filtered, P_filtered, recorder.output_matrix,
