@@ -4,6 +4,7 @@ property, the batch form over tracks, and the README's example run as written)."
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass
@@ -620,3 +621,24 @@ def test_real_excerpt_as_two_bodies_tracks_and_binds_as_derived(tmp_path, capsys
                                atol=1e-12, rtol=0)
     assert (margins.margin[unknown] == -math.inf).all()
     assert (margins.body == "shifted").mean() > 0.9
+
+
+def test_binding_body_refuses_bad_estimates_and_ages_older_ones():
+    """A status typo, a NaN time or a negative sigma is refused naming the body; without ``now``
+    the newest t is now, so an estimate 100 s old is aged (its S_p grows), not used as current."""
+    good = BodyEstimate(t=0.0, position=np.zeros(3), std=np.full(3, 1e-3), status=TRACKED)
+    robot = [1.0, 0.0, 0.0]
+    bad = {"status 'Lost' is not one of": dataclasses.replace(good, status="Lost"),
+           "status '' is not one of": dataclasses.replace(good, status=""),
+           r"t = nan s": dataclasses.replace(good, t=math.nan),
+           "negative sigma": dataclasses.replace(good, std=np.full(3, -0.5))}
+    for message, estimate in bad.items():
+        with pytest.raises(ValueError, match=r"estimates\['right'\]: .*" + message):
+            binding_body(robot, {"left": good, "right": estimate}, **ROBOT)
+    old = dataclasses.replace(good, t=-100.0)
+    implicit = binding_body(robot, {"left": good, "right": old}, **ROBOT)
+    explicit = binding_body(robot, {"left": good, "right": old}, now=0.0, **ROBOT)
+    assert implicit.body == "right" and implicit.margin == explicit.margin
+    assert implicit.margins["left"] == pytest.approx(
+        binding_body(robot, {"left": good}, **ROBOT).margin, abs=1e-15)
+    assert implicit.margin < implicit.margins["left"] - 100.0  # 100 s of human and robot motion
