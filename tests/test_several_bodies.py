@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.stats import chi2
 
-from kfusion.bodies import body_folders, read_body_tracks
+from kfusion.bodies import body_folders, for_each_body, read_body_tracks
 from kfusion.cli import main
 from kfusion.conventions import BRIDGED, LOST, TRACKED
 from kfusion.recording import MarkerFrames, read_markers, read_mocap
@@ -642,3 +642,25 @@ def test_binding_body_refuses_bad_estimates_and_ages_older_ones():
     assert implicit.margins["left"] == pytest.approx(
         binding_body(robot, {"left": good}, **ROBOT).margin, abs=1e-15)
     assert implicit.margin < implicit.margins["left"] - 100.0  # 100 s of human and robot motion
+
+
+def test_a_failed_body_s_old_output_is_removed_and_the_failure_says_so(tmp_path, capsys):
+    """A body that failed on this run must not leave an earlier run's BODY.csv behind as if it
+    were current; the one that succeeded keeps its file."""
+    folders = [tmp_path / "L", tmp_path / "R"]
+    out = tmp_path / "tracks"
+    out.mkdir()
+    for folder in folders:
+        (out / f"{folder.name}.csv").write_text("old\n")
+
+    def action(folder: Path) -> str:
+        if folder.name == "R":
+            raise ValueError("R: bad mount")
+        return f"body {folder.name}: ok"
+
+    failures = for_each_body(folders, action, description="test", progress=False,
+                             output=lambda folder: out / f"{folder.name}.csv")
+    assert [failure.body for failure in failures] == ["R"]
+    assert f"removed its out-of-date {out / 'R.csv'}" in failures[0].reason
+    assert not (out / "R.csv").exists() and (out / "L.csv").exists()
+    assert "removed its out-of-date" in capsys.readouterr().err
