@@ -232,6 +232,11 @@ def test_reader_matches_a_prefixed_label_by_its_marker_name(tmp_path):
     with pytest.raises(RecordingError, match=r"prefixed\.c3d: marker name 'A' is ambiguous: it "
                        r"matches \['Forearm:A', 'Other:A'\]"):
         read_c3d_markers(path, ["A", "B", "C"])
+    # a full label given twice: "give the full label" cannot help; say to rename the duplicate
+    duplicated = write_c3d(tmp_path / "duplicated.c3d", truth, labels=("A", "B", "A", "C"))
+    with pytest.raises(RecordingError, match=r"duplicated\.c3d: marker label 'A' appears 2 times "
+                       r"in POINT:LABELS \(columns \[0, 2\]\); rename the duplicates"):
+        read_c3d_markers(duplicated, ["A", "B", "C"])
 
 
 @pytest.mark.parametrize(("options", "names", "pattern"), [
