@@ -619,7 +619,7 @@ def _vector(file: str, data: dict, key: str, length: int, required: bool = True
 
 KNOWN_INFO_KEYS = ("imu_to_body", "gravity", "name", "imu", "lever_arm", "imu_time_offset",
                    "imu_clock_drift_ppm", "imu_noise", "markers")
-CALIBRATE_HINT = "estimate it with kfusion calibrate DIR --out DIR/recording.yaml"
+CALIBRATE_HINT = "estimate it with kfusion calibrate DIR --out DIR/recording.yaml --force"
 
 
 def _number(file: str, data: dict, key: str, unit: str, limit: float, *,

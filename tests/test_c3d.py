@@ -286,7 +286,7 @@ def test_convert_c3d_poses_match_the_hand_derived_truth(tmp_path, capsys):
                      r"range at most 0\.00 mm over 184 frames with all 4 markers seen \(1 more "
                      r"left out: a marker off by more than the residual limit\)", stdout)
     assert "gravity: [0.0, 0.0, -9.81] m/s^2 from no POINT:Y_SCREEN in the file" in stdout
-    assert f"next: kfusion calibrate {out} --out {out / 'recording.yaml'}" in stdout
+    assert f"next: kfusion calibrate {out} --out {out / 'recording.yaml'} --force" in stdout
     assert ("markers: 4 (A, B, C, D) in 200 frames; all seen in 92.5 %, 3 or more in 95.5 %, "
             "none in 0.5 %") in stdout
 

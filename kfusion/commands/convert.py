@@ -4,7 +4,7 @@
   file in the ``imu.csv`` layout on the same clock. Motive's world is y-up by default, hence the
   default gravity ``[0, -9.81, 0]``. The IMU mount is never guessed: without ``--imu-to-body``
   ``recording.yaml`` has no ``imu_to_body`` and the command prints the next step,
-  ``kfusion calibrate DIR --out DIR/recording.yaml``. With ``--markers A,B,C`` the export's
+  ``kfusion calibrate DIR --out DIR/recording.yaml --force``. With ``--markers A,B,C`` the export's
   ``Marker`` columns of those names are written to ``markers.csv`` too, and their body-frame
   positions (relative to Motive's rigid body) to ``recording.yaml``'s ``markers``.
 * ``c3d FILE.c3d --imu IMU.csv --markers M1,M2,M3[,...]``: the named markers of a C3D file
@@ -96,7 +96,7 @@ def _add_imu_options(parser: argparse.ArgumentParser, body: str, *,
     parser.add_argument("--imu-to-body", nargs=4, type=float, metavar=("W", "X", "Y", "Z"),
                         help=f"unit quaternion IMU -> {body}, if known (default: left out "
                         "of recording.yaml; then run kfusion calibrate DIR --out "
-                        "DIR/recording.yaml)")
+                        "DIR/recording.yaml --force)")
     parser.add_argument("--lever-arm", nargs=3, type=float, metavar=("X", "Y", "Z"),
                         help=f"IMU position in the {body} frame, m (optional)")
     parser.add_argument("--imu-profile", metavar="NAME",
@@ -186,7 +186,8 @@ UNKNOWN_MOUNT_PLACEHOLDER = (1.0, 0.0, 0.0, 0.0)
 def next_step(folder: Path) -> str:
     """What to run after converting without ``--imu-to-body``."""
     return (f"imu_to_body: not given, left out of {folder / META_FILE}; next: kfusion calibrate "
-            f"{folder} --out {folder / META_FILE} (or convert again with --imu-to-body W X Y Z "
+            f"{folder} --out {folder / META_FILE} --force (it adds the mount to the file written "
+            f"here; or convert again with --imu-to-body W X Y Z "
             f"if the mount is known), then kfusion check {folder}")
 
 
@@ -395,8 +396,8 @@ def _convert_c3d_bodies(args: argparse.Namespace, bodies: C3dBodies) -> int:
         print(summarise(written))
     print(f"{len(converted)} bodies ({', '.join(bodies.imu)}) in {out}; imu_to_body left out of "
           f"each {META_FILE}; next: kfusion calibrate {out / 'BODY'} --out "
-          f"{out / 'BODY' / META_FILE} for each body, then kfusion track {out} --out TRACKS/ "
-          "(one track per body)")
+          f"{out / 'BODY' / META_FILE} --force for each body, then kfusion track {out} --out "
+          "TRACKS/ (one track per body)")
     return 0
 
 
