@@ -125,6 +125,8 @@ def test_convert_writes_one_folder_per_body(take, tmp_path, capsys, choice):
         check_body_folder(out / body, body)
         assert f"c3d: body {body}: wrote {out / body}" in stdout
     assert "2 bodies (Left, Right)" in stdout and f"kfusion track {out}" in stdout
+    ignored = "--all-bodies: ignored 1 label(s) without a BODY: prefix (no body): Loose"
+    assert (ignored in stdout) == (choice == ["--all-bodies"])
 
 
 def test_convert_one_body_of_several_with_explicit_markers(take, tmp_path, capsys):

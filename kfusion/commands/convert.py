@@ -38,7 +38,7 @@ from kfusion.commands.check import summarise
 from kfusion.conventions import OPTITRACK_GRAVITY, Z_UP_GRAVITY
 from kfusion.profiles import imu_profile
 from kfusion.readers.broad import read_broad
-from kfusion.readers.c3d import read_c3d_bodies, read_c3d_markers
+from kfusion.readers.c3d import labelled_bodies, read_c3d_labels, read_c3d_markers
 from kfusion.readers.markers import parse_marker_names
 from kfusion.readers.motive import read_motive_csv, read_motive_markers
 from kfusion.recording import (
@@ -278,6 +278,8 @@ class C3dBodies:
     """The bodies of a several-body ``convert c3d``: body name -> its IMU file, in order."""
 
     imu: dict[str, str]
+    ignored: tuple[str, ...] = ()
+    """--all-bodies: the labels without a ``BODY:`` prefix, which belong to no body."""
 
 
 def split_imu_options(values: Sequence[str]) -> tuple[str | None, dict[str, str]]:
@@ -348,8 +350,11 @@ def plan_c3d_bodies(args: argparse.Namespace) -> C3dBodies | None:
         raise ValueError(f"{COMMAND_LINE}: {option} describes one body's IMU; with several "
                          "bodies leave it out and run kfusion calibrate on each body's folder "
                          "(or convert the bodies one at a time)")
+    ignored: tuple[str, ...] = ()
     if args.all_bodies:
-        bodies = list(read_c3d_bodies(args.c3d))
+        labels = read_c3d_labels(args.c3d)
+        bodies = list(labelled_bodies(Path(args.c3d).name, labels))
+        ignored = tuple(label for label in labels if ":" not in label)
     elif not bodies:
         bodies = list(per_body)
     for body in bodies:
@@ -370,7 +375,7 @@ def plan_c3d_bodies(args: argparse.Namespace) -> C3dBodies | None:
     if extra:
         raise ValueError(f"{COMMAND_LINE}: --imu {extra[0]}=...: no body {extra[0]!r} among the "
                          f"bodies converted {bodies}")
-    return C3dBodies(imu={body: per_body[body] for body in bodies})
+    return C3dBodies(imu={body: per_body[body] for body in bodies}, ignored=ignored)
 
 
 def _convert_c3d_bodies(args: argparse.Namespace, bodies: C3dBodies) -> int:
@@ -388,6 +393,9 @@ def _convert_c3d_bodies(args: argparse.Namespace, bodies: C3dBodies) -> int:
             converted.append((body, *_convert_c3d(options)))
         except ValueError as error:
             raise ValueError(f"body {body!r}: {error}") from None
+    if bodies.ignored:
+        print(f"--all-bodies: ignored {len(bodies.ignored)} label(s) without a BODY: prefix "
+              f"(no body): {', '.join(bodies.ignored)}")
     for body, recording, notes in converted:
         written = write_without_mount(recording, out / body)
         print(f"c3d: body {body}: wrote {out / body}")

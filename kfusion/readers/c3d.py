@@ -140,16 +140,19 @@ def body_marker_names(file: str, labels: Sequence[str], body: str) -> tuple[str,
     return chosen
 
 
-def read_c3d_bodies(path: str | Path) -> tuple[str, ...]:
-    """The bodies of a C3D file: the prefixes of its ``BODY:NAME`` labels (``POINT:LABELS``),
-    sorted. Raises RecordingError when the file has none."""
-    path = Path(path)
-    content = _load(path)
+def read_c3d_labels(path: str | Path) -> tuple[str, ...]:
+    """Every label of a C3D file's ``POINT:LABELS``, in column order."""
+    content = _load(Path(path))
     points = np.asarray(content["data"]["points"], dtype=float)
-    labels = _labels(content["parameters"], points.shape[1] if points.ndim == 3 else 0)
+    return _labels(content["parameters"], points.shape[1] if points.ndim == 3 else 0)
+
+
+def labelled_bodies(file: str, labels: Sequence[str]) -> tuple[str, ...]:
+    """The prefixes of the ``BODY:NAME`` labels, sorted. Raises RecordingError naming ``file``
+    when there are none."""
     bodies = body_prefixes(labels)
     if not bodies:
-        raise RecordingError(path.name, "no label 'BODY:NAME' in POINT:LABELS, so no body to "
+        raise RecordingError(file, "no label 'BODY:NAME' in POINT:LABELS, so no body to "
                              f"convert; labels: {listed(labels)} (give --markers instead)")
     return bodies
 
