@@ -446,3 +446,11 @@ def test_without_ezc3d_the_message_says_how_to_install(tmp_path, monkeypatch):
     with pytest.raises(RecordingError, match=re.escape(
             "take.c3d: reading C3D needs ezc3d: pip install 'kfusion[c3d]'")):
         read_c3d_markers(tmp_path / "take.c3d", LABELS)
+
+
+def test_up_axis_is_minus_gravity_along_one_axis():
+    from kfusion.readers.c3d import up_axis
+
+    assert up_axis([0.0, -9.81, 0.0]) == "+Y" and up_axis([0.0, 0.0, 9.81]) == "-Z"
+    assert up_axis([-9.81, 0.0, 0.0]) == "+X"
+    assert up_axis([0.0, -6.0, -7.0]) is None and up_axis([np.nan] * 3) is None

@@ -445,6 +445,8 @@ def test_simulate_writes_c3d_that_converts_back(tmp_path, capsys):
     np.testing.assert_allclose(converted.markers.position, simulated.markers.position,
                                atol=1e-6)  # float32 in mm
     np.testing.assert_array_equal(converted.mocap.visible, simulated.mocap.visible)
+    # the file names its up axis (POINT:Y_SCREEN), so the conversion keeps the simulated gravity
+    np.testing.assert_allclose(converted.info.gravity, simulated.info.gravity, atol=1e-12)
     assert main(["simulate", "circle", "--c3d", str(c3d), "--out", str(folder)]) == 2
     assert "expected --markers too" in capsys.readouterr().err
 

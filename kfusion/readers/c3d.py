@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from kfusion.readers.markers import listed, match_markers
 from kfusion.recording import (
@@ -108,6 +108,19 @@ def _gravity(parameters: dict[str, Any]) -> tuple[float, float, float] | None:
     gravity = [0.0, 0.0, 0.0]
     gravity["XYZ".index(axis[1])] = -GRAVITY_MAGNITUDE if axis[0] == "+" else GRAVITY_MAGNITUDE
     return (gravity[0], gravity[1], gravity[2])
+
+
+def up_axis(gravity: ArrayLike) -> str | None:
+    """The ``POINT:Y_SCREEN`` value whose axis is up for ``gravity`` (m/s^2, global frame), the
+    inverse of the reading rule: up is minus gravity, (0, -9.81, 0) -> ``+Y``; None when gravity
+    is not along one axis (no single axis to name) or not finite."""
+    vector = np.asarray(gravity, dtype=float)
+    if vector.shape != (3,) or not np.isfinite(vector).all() or not vector.any():
+        return None
+    axis = int(np.argmax(np.abs(vector)))
+    if np.count_nonzero(vector) != 1:
+        return None
+    return ("-" if vector[axis] > 0 else "+") + "XYZ"[axis]
 
 
 def _load(path: Path) -> dict[str, Any]:
