@@ -461,3 +461,15 @@ def test_a_tracker_from_recording_yaml_takes_its_markers(partial, tmp_path):
         outcome = tracker.push_markers(recording.mocap.t[row], marker_frame(recording, row))
         assert outcome.accepted
     assert tracker.health.markers_used == 12 and tracker.health.mocap_fused == 3
+
+
+@pytest.mark.parametrize("positions", [
+    ((0.0, 0.0, 0.0), (0.05, 0.0, 0.0), (0.10, 0.001, 0.0), (0.15, 0.0, 0.001)),  # on a line
+    ((0.005, 0.002, 0.001), (-0.004, 0.003, -0.002), (0.001, -0.005, 0.002),
+     (-0.003, -0.001, -0.004)),  # a cluster 1 cm across
+])
+def test_marker_spec_refuses_a_cluster_the_solver_cannot_solve(positions):
+    """The converter's collinearity limit: such a simulated cluster would give no solved mocap."""
+    with pytest.raises(ValueError, match=r"MarkerSpec\.body_positions are nearly collinear "
+                       r"\(RMS \d\.\d\d mm off a line, expected at least 5 mm\)"):
+        MarkerSpec(body_positions=positions)
