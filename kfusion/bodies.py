@@ -48,13 +48,17 @@ class BodyFailure:
 
 
 def for_each_body(folders: Sequence[Path], action: Callable[[Path], str], *,
-                  description: str, progress: bool | None = None) -> list[BodyFailure]:
+                  description: str, progress: bool | None = None,
+                  output: Callable[[Path], Path] | None = None) -> list[BodyFailure]:
     """Run ``action`` on each body folder in turn; a body that fails does not stop the others.
 
     ``action(folder)`` returns a line to print (stdout). A user mistake in one body (ValueError,
     OSError) is printed to stderr as ``body NAME: error: ...`` and returned; anything else (a
     bug, KeyboardInterrupt) stops the loop, after printing which bodies were done. ``progress``
-    shows a tqdm bar over the bodies on stderr (None: only on a terminal).
+    shows a tqdm bar over the bodies on stderr (None: only on a terminal). ``output(folder)``,
+    when given, is the file the action writes for that body: when the body fails, an older file
+    there (from an earlier run) is removed and the failure line says so, so that it is never read
+    afterwards as if it were this run's result.
     """
     from tqdm import tqdm
 
@@ -70,7 +74,12 @@ def for_each_body(folders: Sequence[Path], action: Callable[[Path], str], *,
             try:
                 line = action(folder)
             except (ValueError, OSError) as error:
-                failures.append(BodyFailure(folder.name, error_line(error)))
+                reason = error_line(error)
+                stale = None if output is None else output(folder)
+                if stale is not None and stale.is_file():
+                    stale.unlink()
+                    reason += f"; removed its out-of-date {stale}"
+                failures.append(BodyFailure(folder.name, reason))
                 tqdm.write(f"body {folder.name}: error: {failures[-1].reason}", file=sys.stderr)
                 continue
             except BaseException:

@@ -77,6 +77,17 @@ MAX_PLAUSIBLE_MARKER_OFFSET = 2.0
 
 MAX_PLAUSIBLE_POSITION = 10.0
 """m: a mocap coordinate beyond this looks like millimetres."""
+
+
+def far_position_message(value: float) -> str:
+    """Why a coordinate beyond MAX_PLAUSIBLE_POSITION is refused: within 1000 times the limit it
+    looks like mm (divide by 1000); beyond that (e.g. 1e300) even mm would put it over 10 km away,
+    so it is named an implausible value rather than given the mm advice."""
+    limit = f"expected m (|coordinate| <= {MAX_PLAUSIBLE_POSITION:g} m)"
+    if abs(value) <= 1000.0 * MAX_PLAUSIBLE_POSITION:
+        return f"position {value:.6g} looks like mm; {limit}: divide by 1000"
+    return f"position {value:.6g} is implausible (not even mm); {limit}"
+
 G_UNIT_MAGNITUDE_RANGE = (0.5, 2.0)
 """Median accelerometer magnitude in this range looks like g units, not m/s^2."""
 PLAUSIBLE_ACCELEROMETER_MEDIAN = (4.0, 30.0)
@@ -579,8 +590,7 @@ def check_mocap_values(file: str, position: NDArray, quaternion: NDArray,
         col = int(np.argmax(np.abs(position[row])))
         raise RecordingError(
             file,
-            f"position {position[row, col]:.6g} looks like mm; expected m "
-            f"(|coordinate| <= {MAX_PLAUSIBLE_POSITION:g} m): divide by 1000",
+            far_position_message(float(position[row, col])),
             row=row + 1,
             column="xyz"[col],
         )
@@ -609,7 +619,7 @@ def _vector(file: str, data: dict, key: str, length: int, required: bool = True
 
 KNOWN_INFO_KEYS = ("imu_to_body", "gravity", "name", "imu", "lever_arm", "imu_time_offset",
                    "imu_clock_drift_ppm", "imu_noise", "markers")
-CALIBRATE_HINT = "estimate it with kfusion calibrate DIR --out DIR/recording.yaml"
+CALIBRATE_HINT = "estimate it with kfusion calibrate DIR --out DIR/recording.yaml --force"
 
 
 def _number(file: str, data: dict, key: str, unit: str, limit: float, *,
@@ -825,9 +835,8 @@ def read_markers(path: str | Path, *, zero_position_means_occluded: bool = False
     far = np.abs(np.nan_to_num(position)) > MAX_PLAUSIBLE_POSITION
     if far.any():
         row, marker, axis = np.argwhere(far)[0]
-        raise RecordingError(path.name, f"position {position[row, marker, axis]:.6g} looks "
-                             f"like mm; expected m (|coordinate| <= {MAX_PLAUSIBLE_POSITION:g} "
-                             "m): divide by 1000", row=int(row) + 1,
+        raise RecordingError(path.name, far_position_message(float(position[row, marker, axis])),
+                             row=int(row) + 1,
                              column=columns[1 + 3 * int(marker) + int(axis)])
     return MarkerFrames(t=values[:, 0], names=tuple(names), position=position)
 

@@ -74,6 +74,17 @@ def line_spread(points: ArrayLike) -> float:
     return float(np.hypot(*singular[1:3]) / np.sqrt(len(array))) if len(singular) > 1 else 0.0
 
 
+def refuse_collinear(what: str, positions: ArrayLike) -> None:
+    """ValueError naming ``what`` when the markers (n, 3), m, lie within MIN_CLUSTER_SPREAD
+    (RMS, :func:`line_spread`) of a line: the rotation about it is undetermined, so the Kabsch
+    solver cannot fix the body's orientation (a nearly collinear or a too small cluster)."""
+    spread = line_spread(positions)
+    if spread < MIN_CLUSTER_SPREAD:
+        raise ValueError(f"{what} are nearly collinear (RMS {spread * 1e3:.2f} mm off a line, "
+                         f"expected at least {MIN_CLUSTER_SPREAD * 1e3:g} mm): the orientation "
+                         "is undetermined")
+
+
 def mean_shape(full_frames: ArrayLike, iterations: int = SHAPE_ITERATIONS
                ) -> NDArray[np.float64]:
     """Mean cluster shape (n, 3), m, in the body frame defined in the module docstring.
@@ -228,10 +239,7 @@ def estimate_cluster(names: tuple[str, ...], marker_positions: ArrayLike, *,
                          "expected at least one to define the rigid body")
     step = max(1, int(np.ceil(len(full) / MAX_SHAPE_FRAMES)))
     body = mean_shape(full[::step])
-    if line_spread(body) < MIN_CLUSTER_SPREAD:
-        raise ValueError(f"markers {list(names)} are nearly collinear (RMS "
-                         f"{line_spread(body) * 1e3:.2f} mm off a line, expected at least "
-                         f"{MIN_CLUSTER_SPREAD * 1e3:g} mm): the orientation is undetermined")
+    refuse_collinear(f"markers {list(names)}", body)
     fits = solve_poses(full, body, max_residual=max_residual)
     outliers = int(fits.rejected.sum())
     if outliers:

@@ -65,7 +65,7 @@ from typing import Any, Final, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kfusion.conventions import LOST
+from kfusion.conventions import LOST, STATUSES
 
 HAND_APPROACH_SPEED: Final = 2.0
 """m/s, ISO 13855 K = 2000 mm/s, the first speed of the rule."""
@@ -425,19 +425,27 @@ def binding_body(robot_position: ArrayLike, estimates: Mapping[str, HasPosition]
 
     Raises:
         ValueError: a robot position that is not 3 finite numbers, an estimate of the wrong type,
-            or a bad separation argument (as :func:`protective_separation_distance`).
+            an estimate (named) whose status is not one of ``tracked``, ``bridged``, ``lost``,
+            whose ``t`` is not finite or whose ``std`` (when it has one) is negative, or a bad
+            separation argument (as :func:`protective_separation_distance`).
+
+    Without ``now`` the newest estimate's ``t`` is taken as now, and every older estimate is aged
+    by ``now - t`` (added to T_r as with an explicit ``now``): an estimate 100 s older than the
+    others is never used as if it were current.
     """
     robot = np.asarray(robot_position, dtype=float)
     if robot.shape != (3,) or not np.isfinite(robot).all():
         raise ValueError(f"robot_position: expected 3 finite numbers (m), got shape "
                          f"{robot.shape}" + ("" if robot.shape != (3,) else f" {robot.tolist()}"))
+    for name, estimate in estimates.items():
+        _check_body_estimate(name, estimate)
+    if separation.get("now") is None and estimates:
+        separation = {**separation,
+                      "now": max(float(estimate.t) for estimate in estimates.values())}
     margins: dict[str, float] = {}
     best: tuple[str, float, float, SeparationDistance] | None = None
     unknown: list[str] = []
     for name, estimate in estimates.items():
-        if not isinstance(estimate, HasPosition):
-            raise ValueError(f"estimates[{name!r}]: expected an estimate with t, status, "
-                             f"bound(confidence) and position, got {type(estimate).__name__}")
         distance_to_stop = protective_separation_distance(estimate, **separation)
         margin, distance = body_margin(robot, estimate.position, distance_to_stop)
         margins[name] = margin
@@ -455,6 +463,26 @@ def binding_body(robot_position: ArrayLike, estimates: Mapping[str, HasPosition]
     return BindingBody(known=True, body=name, margin=margin, distance=distance,
                        separation=distance_to_stop, margins=MappingProxyType(margins),
                        unknown_bodies=(), reason="")
+
+
+def _check_body_estimate(name: str, estimate: object) -> None:
+    """Raise ValueError naming body ``name`` for an estimate binding_body cannot use as given:
+    not an estimate, a status outside STATUSES (a typo such as "Lost" must not pass as tracked),
+    a non-finite t, or a negative std (a sigma is >= 0; NaN std means "none given" and stays
+    allowed: it makes the body unknown)."""
+    if not isinstance(estimate, HasPosition):
+        raise ValueError(f"estimates[{name!r}]: expected an estimate with t, status, "
+                         f"bound(confidence) and position, got {type(estimate).__name__}")
+    if estimate.status not in STATUSES:
+        raise ValueError(f"estimates[{name!r}]: status {estimate.status!r} is not one of "
+                         f"{', '.join(STATUSES)}")
+    t = float(estimate.t)
+    if not math.isfinite(t):
+        raise ValueError(f"estimates[{name!r}]: t = {t!r} s; expected a finite time")
+    std = getattr(estimate, "std", None)
+    if std is not None and bool(np.any(np.asarray(std, dtype=float) < 0)):
+        raise ValueError(f"estimates[{name!r}]: std {np.asarray(std).tolist()} m has a negative "
+                         "sigma; expected values >= 0 (NaN when none)")
 
 
 @dataclass(frozen=True)

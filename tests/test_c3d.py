@@ -232,6 +232,11 @@ def test_reader_matches_a_prefixed_label_by_its_marker_name(tmp_path):
     with pytest.raises(RecordingError, match=r"prefixed\.c3d: marker name 'A' is ambiguous: it "
                        r"matches \['Forearm:A', 'Other:A'\]"):
         read_c3d_markers(path, ["A", "B", "C"])
+    # a full label given twice: "give the full label" cannot help; say to rename the duplicate
+    duplicated = write_c3d(tmp_path / "duplicated.c3d", truth, labels=("A", "B", "A", "C"))
+    with pytest.raises(RecordingError, match=r"duplicated\.c3d: marker label 'A' appears 2 times "
+                       r"in POINT:LABELS \(columns \[0, 2\]\); rename the duplicates"):
+        read_c3d_markers(duplicated, ["A", "B", "C"])
 
 
 @pytest.mark.parametrize(("options", "names", "pattern"), [
@@ -281,7 +286,7 @@ def test_convert_c3d_poses_match_the_hand_derived_truth(tmp_path, capsys):
                      r"range at most 0\.00 mm over 184 frames with all 4 markers seen \(1 more "
                      r"left out: a marker off by more than the residual limit\)", stdout)
     assert "gravity: [0.0, 0.0, -9.81] m/s^2 from no POINT:Y_SCREEN in the file" in stdout
-    assert f"next: kfusion calibrate {out} --out {out / 'recording.yaml'}" in stdout
+    assert f"next: kfusion calibrate {out} --out {out / 'recording.yaml'} --force" in stdout
     assert ("markers: 4 (A, B, C, D) in 200 frames; all seen in 92.5 %, 3 or more in 95.5 %, "
             "none in 0.5 %") in stdout
 
@@ -441,3 +446,11 @@ def test_without_ezc3d_the_message_says_how_to_install(tmp_path, monkeypatch):
     with pytest.raises(RecordingError, match=re.escape(
             "take.c3d: reading C3D needs ezc3d: pip install 'kfusion[c3d]'")):
         read_c3d_markers(tmp_path / "take.c3d", LABELS)
+
+
+def test_up_axis_is_minus_gravity_along_one_axis():
+    from kfusion.readers.c3d import up_axis
+
+    assert up_axis([0.0, -9.81, 0.0]) == "+Y" and up_axis([0.0, 0.0, 9.81]) == "-Z"
+    assert up_axis([-9.81, 0.0, 0.0]) == "+X"
+    assert up_axis([0.0, -6.0, -7.0]) is None and up_axis([np.nan] * 3) is None

@@ -445,6 +445,8 @@ def test_simulate_writes_c3d_that_converts_back(tmp_path, capsys):
     np.testing.assert_allclose(converted.markers.position, simulated.markers.position,
                                atol=1e-6)  # float32 in mm
     np.testing.assert_array_equal(converted.mocap.visible, simulated.mocap.visible)
+    # the file names its up axis (POINT:Y_SCREEN), so the conversion keeps the simulated gravity
+    np.testing.assert_allclose(converted.info.gravity, simulated.info.gravity, atol=1e-12)
     assert main(["simulate", "circle", "--c3d", str(c3d), "--out", str(folder)]) == 2
     assert "expected --markers too" in capsys.readouterr().err
 
@@ -510,3 +512,15 @@ def test_cycled_labels_for_good_are_not_fused_as_a_reacquisition():
     error = np.linalg.norm(result.position[live] - truth.position[live], axis=1)
     bound = np.sqrt(16.27 * np.sum(result.std[live] ** 2, axis=1))
     assert np.mean(error > bound) <= 0.01, (np.mean(error > bound), np.max(error / bound))
+
+
+@pytest.mark.parametrize("positions", [
+    ((0.0, 0.0, 0.0), (0.05, 0.0, 0.0), (0.10, 0.001, 0.0), (0.15, 0.0, 0.001)),  # on a line
+    ((0.005, 0.002, 0.001), (-0.004, 0.003, -0.002), (0.001, -0.005, 0.002),
+     (-0.003, -0.001, -0.004)),  # a cluster 1 cm across
+])
+def test_marker_spec_refuses_a_cluster_the_solver_cannot_solve(positions):
+    """The converter's collinearity limit: such a simulated cluster would give no solved mocap."""
+    with pytest.raises(ValueError, match=r"MarkerSpec\.body_positions are nearly collinear "
+                       r"\(RMS \d\.\d\d mm off a line, expected at least 5 mm\)"):
+        MarkerSpec(body_positions=positions)

@@ -159,6 +159,9 @@ CSV_CASES = [
      r"markers\.csv, row 2 \(line 3\), column 'Forearm:M3_x': infinite value"),
     ("mm", lambda lines: set_cell(lines, 4, 3, "1500.0"),
      r"markers\.csv, row 4 \(line 5\), column 'LEFT_z': position 1500 looks like mm"),
+    ("implausible", lambda lines: set_cell(lines, 4, 3, "1e300"),
+     r"markers\.csv, row 4 \(line 5\), column 'LEFT_z': position 1e\+300 is implausible "
+     r"\(not even mm\); expected m \(\|coordinate\| <= 10 m\)$"),
     ("time order", lambda lines: lines.__setitem__(3, lines[2]),
      r"markers\.csv, row 3 \(line 4\), column 't': timestamp .* is duplicated"),
 ]

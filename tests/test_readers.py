@@ -466,7 +466,7 @@ def test_convert_motive_leaves_the_unknown_mount_out_and_names_the_next_step(tmp
                                   "Forearm", "--out", str(out))
     assert (status, err) == (0, "")
     assert "mocap: 20 frames at 120.0 Hz, 3 occluded" in stdout and "occlusions: 1" in stdout
-    assert f"next: kfusion calibrate {out} --out {out / 'recording.yaml'}" in stdout
+    assert f"next: kfusion calibrate {out} --out {out / 'recording.yaml'} --force" in stdout
     assert "--imu-to-body" in stdout.splitlines()[-1]
     metadata = yaml.safe_load((out / "recording.yaml").read_text())
     assert metadata == {"gravity": [0.0, -9.81, 0.0], "name": "motive_take"}  # Motive: y-up

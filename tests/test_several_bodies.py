@@ -4,6 +4,7 @@ property, the batch form over tracks, and the README's example run as written)."
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass
@@ -16,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.stats import chi2
 
-from kfusion.bodies import body_folders, read_body_tracks
+from kfusion.bodies import body_folders, for_each_body, read_body_tracks
 from kfusion.cli import main
 from kfusion.conventions import BRIDGED, LOST, TRACKED
 from kfusion.recording import MarkerFrames, read_markers, read_mocap
@@ -124,6 +125,8 @@ def test_convert_writes_one_folder_per_body(take, tmp_path, capsys, choice):
         check_body_folder(out / body, body)
         assert f"c3d: body {body}: wrote {out / body}" in stdout
     assert "2 bodies (Left, Right)" in stdout and f"kfusion track {out}" in stdout
+    ignored = "--all-bodies: ignored 1 label(s) without a BODY: prefix (no body): Loose"
+    assert (ignored in stdout) == (choice == ["--all-bodies"])
 
 
 def test_convert_one_body_of_several_with_explicit_markers(take, tmp_path, capsys):
@@ -620,3 +623,46 @@ def test_real_excerpt_as_two_bodies_tracks_and_binds_as_derived(tmp_path, capsys
                                atol=1e-12, rtol=0)
     assert (margins.margin[unknown] == -math.inf).all()
     assert (margins.body == "shifted").mean() > 0.9
+
+
+def test_binding_body_refuses_bad_estimates_and_ages_older_ones():
+    """A status typo, a NaN time or a negative sigma is refused naming the body; without ``now``
+    the newest t is now, so an estimate 100 s old is aged (its S_p grows), not used as current."""
+    good = BodyEstimate(t=0.0, position=np.zeros(3), std=np.full(3, 1e-3), status=TRACKED)
+    robot = [1.0, 0.0, 0.0]
+    bad = {"status 'Lost' is not one of": dataclasses.replace(good, status="Lost"),
+           "status '' is not one of": dataclasses.replace(good, status=""),
+           r"t = nan s": dataclasses.replace(good, t=math.nan),
+           "negative sigma": dataclasses.replace(good, std=np.full(3, -0.5))}
+    for message, estimate in bad.items():
+        with pytest.raises(ValueError, match=r"estimates\['right'\]: .*" + message):
+            binding_body(robot, {"left": good, "right": estimate}, **ROBOT)
+    old = dataclasses.replace(good, t=-100.0)
+    implicit = binding_body(robot, {"left": good, "right": old}, **ROBOT)
+    explicit = binding_body(robot, {"left": good, "right": old}, now=0.0, **ROBOT)
+    assert implicit.body == "right" and implicit.margin == explicit.margin
+    assert implicit.margins["left"] == pytest.approx(
+        binding_body(robot, {"left": good}, **ROBOT).margin, abs=1e-15)
+    assert implicit.margin < implicit.margins["left"] - 100.0  # 100 s of human and robot motion
+
+
+def test_a_failed_body_s_old_output_is_removed_and_the_failure_says_so(tmp_path, capsys):
+    """A body that failed on this run must not leave an earlier run's BODY.csv behind as if it
+    were current; the one that succeeded keeps its file."""
+    folders = [tmp_path / "L", tmp_path / "R"]
+    out = tmp_path / "tracks"
+    out.mkdir()
+    for folder in folders:
+        (out / f"{folder.name}.csv").write_text("old\n")
+
+    def action(folder: Path) -> str:
+        if folder.name == "R":
+            raise ValueError("R: bad mount")
+        return f"body {folder.name}: ok"
+
+    failures = for_each_body(folders, action, description="test", progress=False,
+                             output=lambda folder: out / f"{folder.name}.csv")
+    assert [failure.body for failure in failures] == ["R"]
+    assert f"removed its out-of-date {out / 'R.csv'}" in failures[0].reason
+    assert not (out / "R.csv").exists() and (out / "L.csv").exists()
+    assert "removed its out-of-date" in capsys.readouterr().err

@@ -4,7 +4,7 @@
   file in the ``imu.csv`` layout on the same clock. Motive's world is y-up by default, hence the
   default gravity ``[0, -9.81, 0]``. The IMU mount is never guessed: without ``--imu-to-body``
   ``recording.yaml`` has no ``imu_to_body`` and the command prints the next step,
-  ``kfusion calibrate DIR --out DIR/recording.yaml``. With ``--markers A,B,C`` the export's
+  ``kfusion calibrate DIR --out DIR/recording.yaml --force``. With ``--markers A,B,C`` the export's
   ``Marker`` columns of those names are written to ``markers.csv`` too, and their body-frame
   positions (relative to Motive's rigid body) to ``recording.yaml``'s ``markers``.
 * ``c3d FILE.c3d --imu IMU.csv --markers M1,M2,M3[,...]``: the named markers of a C3D file
@@ -38,7 +38,7 @@ from kfusion.commands.check import summarise
 from kfusion.conventions import OPTITRACK_GRAVITY, Z_UP_GRAVITY
 from kfusion.profiles import imu_profile
 from kfusion.readers.broad import read_broad
-from kfusion.readers.c3d import read_c3d_bodies, read_c3d_markers
+from kfusion.readers.c3d import labelled_bodies, read_c3d_labels, read_c3d_markers
 from kfusion.readers.markers import parse_marker_names
 from kfusion.readers.motive import read_motive_csv, read_motive_markers
 from kfusion.recording import (
@@ -96,7 +96,7 @@ def _add_imu_options(parser: argparse.ArgumentParser, body: str, *,
     parser.add_argument("--imu-to-body", nargs=4, type=float, metavar=("W", "X", "Y", "Z"),
                         help=f"unit quaternion IMU -> {body}, if known (default: left out "
                         "of recording.yaml; then run kfusion calibrate DIR --out "
-                        "DIR/recording.yaml)")
+                        "DIR/recording.yaml --force)")
     parser.add_argument("--lever-arm", nargs=3, type=float, metavar=("X", "Y", "Z"),
                         help=f"IMU position in the {body} frame, m (optional)")
     parser.add_argument("--imu-profile", metavar="NAME",
@@ -186,7 +186,8 @@ UNKNOWN_MOUNT_PLACEHOLDER = (1.0, 0.0, 0.0, 0.0)
 def next_step(folder: Path) -> str:
     """What to run after converting without ``--imu-to-body``."""
     return (f"imu_to_body: not given, left out of {folder / META_FILE}; next: kfusion calibrate "
-            f"{folder} --out {folder / META_FILE} (or convert again with --imu-to-body W X Y Z "
+            f"{folder} --out {folder / META_FILE} --force (it adds the mount to the file written "
+            f"here; or convert again with --imu-to-body W X Y Z "
             f"if the mount is known), then kfusion check {folder}")
 
 
@@ -277,6 +278,8 @@ class C3dBodies:
     """The bodies of a several-body ``convert c3d``: body name -> its IMU file, in order."""
 
     imu: dict[str, str]
+    ignored: tuple[str, ...] = ()
+    """--all-bodies: the labels without a ``BODY:`` prefix, which belong to no body."""
 
 
 def split_imu_options(values: Sequence[str]) -> tuple[str | None, dict[str, str]]:
@@ -347,8 +350,11 @@ def plan_c3d_bodies(args: argparse.Namespace) -> C3dBodies | None:
         raise ValueError(f"{COMMAND_LINE}: {option} describes one body's IMU; with several "
                          "bodies leave it out and run kfusion calibrate on each body's folder "
                          "(or convert the bodies one at a time)")
+    ignored: tuple[str, ...] = ()
     if args.all_bodies:
-        bodies = list(read_c3d_bodies(args.c3d))
+        labels = read_c3d_labels(args.c3d)
+        bodies = list(labelled_bodies(Path(args.c3d).name, labels))
+        ignored = tuple(label for label in labels if ":" not in label)
     elif not bodies:
         bodies = list(per_body)
     for body in bodies:
@@ -369,7 +375,7 @@ def plan_c3d_bodies(args: argparse.Namespace) -> C3dBodies | None:
     if extra:
         raise ValueError(f"{COMMAND_LINE}: --imu {extra[0]}=...: no body {extra[0]!r} among the "
                          f"bodies converted {bodies}")
-    return C3dBodies(imu={body: per_body[body] for body in bodies})
+    return C3dBodies(imu={body: per_body[body] for body in bodies}, ignored=ignored)
 
 
 def _convert_c3d_bodies(args: argparse.Namespace, bodies: C3dBodies) -> int:
@@ -387,6 +393,9 @@ def _convert_c3d_bodies(args: argparse.Namespace, bodies: C3dBodies) -> int:
             converted.append((body, *_convert_c3d(options)))
         except ValueError as error:
             raise ValueError(f"body {body!r}: {error}") from None
+    if bodies.ignored:
+        print(f"--all-bodies: ignored {len(bodies.ignored)} label(s) without a BODY: prefix "
+              f"(no body): {', '.join(bodies.ignored)}")
     for body, recording, notes in converted:
         written = write_without_mount(recording, out / body)
         print(f"c3d: body {body}: wrote {out / body}")
@@ -395,8 +404,8 @@ def _convert_c3d_bodies(args: argparse.Namespace, bodies: C3dBodies) -> int:
         print(summarise(written))
     print(f"{len(converted)} bodies ({', '.join(bodies.imu)}) in {out}; imu_to_body left out of "
           f"each {META_FILE}; next: kfusion calibrate {out / 'BODY'} --out "
-          f"{out / 'BODY' / META_FILE} for each body, then kfusion track {out} --out TRACKS/ "
-          "(one track per body)")
+          f"{out / 'BODY' / META_FILE} --force for each body, then kfusion track {out} --out "
+          "TRACKS/ (one track per body)")
     return 0
 
 

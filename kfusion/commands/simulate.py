@@ -65,9 +65,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"markers: {', '.join(recording.markers.names)}; frames with fewer than all "
               f"markers seen: {counts}")
         if args.c3d is not None:
-            from kfusion.readers.c3d import write_c3d_markers
+            from kfusion.readers.c3d import up_axis, write_c3d_markers
 
-            print(f"wrote {write_c3d_markers(args.c3d, recording.markers)}")
+            written = write_c3d_markers(args.c3d, recording.markers,
+                                        up_axis=up_axis(recording.info.gravity))
+            print(f"wrote {written}")
     durations = occlusion_durations(recording.mocap.t, recording.mocap.visible)
     print(f"wrote {folder}: {args.scenario} seed {args.seed}, {recording.imu.t[-1]:.1f} s, "
           f"{len(recording.imu)} IMU samples ({recording.info.imu}), {len(recording.mocap)} "

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from kfusion.readers.markers import listed, match_markers
 from kfusion.recording import (
@@ -110,6 +110,19 @@ def _gravity(parameters: dict[str, Any]) -> tuple[float, float, float] | None:
     return (gravity[0], gravity[1], gravity[2])
 
 
+def up_axis(gravity: ArrayLike) -> str | None:
+    """The ``POINT:Y_SCREEN`` value whose axis is up for ``gravity`` (m/s^2, global frame), the
+    inverse of the reading rule: up is minus gravity, (0, -9.81, 0) -> ``+Y``; None when gravity
+    is not along one axis (no single axis to name) or not finite."""
+    vector = np.asarray(gravity, dtype=float)
+    if vector.shape != (3,) or not np.isfinite(vector).all() or not vector.any():
+        return None
+    axis = int(np.argmax(np.abs(vector)))
+    if np.count_nonzero(vector) != 1:
+        return None
+    return ("-" if vector[axis] > 0 else "+") + "XYZ"[axis]
+
+
 def _load(path: Path) -> dict[str, Any]:
     try:
         import ezc3d
@@ -140,16 +153,19 @@ def body_marker_names(file: str, labels: Sequence[str], body: str) -> tuple[str,
     return chosen
 
 
-def read_c3d_bodies(path: str | Path) -> tuple[str, ...]:
-    """The bodies of a C3D file: the prefixes of its ``BODY:NAME`` labels (``POINT:LABELS``),
-    sorted. Raises RecordingError when the file has none."""
-    path = Path(path)
-    content = _load(path)
+def read_c3d_labels(path: str | Path) -> tuple[str, ...]:
+    """Every label of a C3D file's ``POINT:LABELS``, in column order."""
+    content = _load(Path(path))
     points = np.asarray(content["data"]["points"], dtype=float)
-    labels = _labels(content["parameters"], points.shape[1] if points.ndim == 3 else 0)
+    return _labels(content["parameters"], points.shape[1] if points.ndim == 3 else 0)
+
+
+def labelled_bodies(file: str, labels: Sequence[str]) -> tuple[str, ...]:
+    """The prefixes of the ``BODY:NAME`` labels, sorted. Raises RecordingError naming ``file``
+    when there are none."""
     bodies = body_prefixes(labels)
     if not bodies:
-        raise RecordingError(path.name, "no label 'BODY:NAME' in POINT:LABELS, so no body to "
+        raise RecordingError(file, "no label 'BODY:NAME' in POINT:LABELS, so no body to "
                              f"convert; labels: {listed(labels)} (give --markers instead)")
     return bodies
 

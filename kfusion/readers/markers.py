@@ -51,6 +51,11 @@ def match_markers(file: str, wanted: Sequence[str], labels: Sequence[str], where
         if not found:
             raise RecordingError(file, f"no marker named {name!r}; expected names from {where}: "
                                  f"{listed(cleaned)}")
+        if len(exact) > 1:
+            raise RecordingError(file, f"marker label {name!r} appears {len(exact)} times in "
+                                 f"{where} (columns {exact}); rename the duplicates in the "
+                                 "capture software and export again, or drop the marker from "
+                                 "the body")
         if len(found) > 1:
             raise RecordingError(file, f"marker name {name!r} is ambiguous: it matches "
                                  f"{[cleaned[i] for i in found]} in {where}; give the full label")

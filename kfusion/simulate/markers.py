@@ -62,6 +62,9 @@ class MarkerSpec:
         if body.ndim != 2 or body.shape[1] != 3 or len(body) < 3 or not np.isfinite(body).all():
             raise ValueError(f"MarkerSpec.body_positions: expected (n, 3) finite positions in m "
                              f"with n >= 3, got shape {body.shape}")
+        from kfusion.rigid_body import refuse_collinear
+
+        refuse_collinear("MarkerSpec.body_positions", body)
         if not (math.isfinite(self.noise) and self.noise >= 0):
             raise ValueError(f"MarkerSpec.noise: expected a finite number >= 0 (m), got "
                              f"{self.noise!r}")
