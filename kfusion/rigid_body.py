@@ -259,6 +259,12 @@ def estimate_cluster(names: tuple[str, ...], marker_positions: ArrayLike, *,
                            pairs=tuple((names[i], names[j]) for i, j in pairs))
 
 
+LABEL_JUMP_M = 20e-3
+"""m: a marker this far from its place in the body frame has jumped to another label (a swap),
+rather than moved: cluster markers sit several cm apart. Twice the filter's
+``gate_min_innovation``."""
+
+
 @dataclass(frozen=True)
 class BodyMarkers:
     """Marker positions in a given rigid body's frame (see :func:`markers_in_body_frame`).
@@ -278,7 +284,11 @@ def markers_in_body_frame(mocap: MocapFrames, markers: MarkerFrames) -> BodyMark
     """Body-frame marker positions from rigid-body poses and markers seen in the same frames.
 
     Each frame where the pose and marker i are seen gives ``b_i = R_global_body^T (g_i - p)``;
-    the result is their mean, and the spread their RMS distance from it.
+    the result is their mean over the frames within :data:`LABEL_JUMP_M` of their per-axis
+    median (a label swapped for a while moves a marker by the cluster's size, and a plain mean
+    over 10 % swapped frames put two markers 8 mm off), and the spread their RMS distance from
+    it. ``kfusion check`` then tests the positions against every frame
+    (:mod:`kfusion.calibration.marker_fit`), so a loose marker is reported there.
 
     Raises:
         ValueError: the two have different times, or a marker is never seen with the pose.
@@ -298,6 +308,8 @@ def markers_in_body_frame(mocap: MocapFrames, markers: MarkerFrames) -> BodyMark
         if len(samples) == 0:
             raise ValueError(f"marker {name!r} is never seen in a frame with the rigid body; "
                              "expected at least one to place it in the body frame")
-        positions[index] = samples.mean(axis=0)
-        spread[index] = np.sqrt(((samples - positions[index]) ** 2).sum(axis=1).mean())
+        median = np.median(samples, axis=0)
+        kept = samples[np.linalg.norm(samples - median, axis=1) <= LABEL_JUMP_M]
+        positions[index] = kept.mean(axis=0)
+        spread[index] = np.sqrt(((kept - positions[index]) ** 2).sum(axis=1).mean())
     return BodyMarkers(positions=positions, spread=spread, frames=int(both.sum(axis=0).min()))

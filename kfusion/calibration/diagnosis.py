@@ -107,7 +107,7 @@ ppm over 20 s, missed, leaves 2-3 % of rows beyond the 99 % bound, up to 1.8x)."
 DRIFT_SIGMAS: Final = 4.0
 """A drift is reported only beyond this many sigma (and when it moves the clock by more than
 :data:`FINE_CLOCK_TOLERANCE_S` across the motion, :func:`drift_clock_change`)."""
-CALIBRATE_FIX: Final = "run kfusion calibrate DIR --out DIR/recording.yaml"
+CALIBRATE_FIX: Final = "run kfusion calibrate DIR --out DIR/recording.yaml --force"
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from kfusion.conventions import matrix_from_wxyz
 from kfusion.recording import Recording
+from kfusion.rigid_body import LABEL_JUMP_M
 
 MARKER_TOLERANCE_M: Final = 1e-3
 """m: a marker whose windowed median offset from its ``markers:`` position exceeds this is
@@ -35,11 +36,11 @@ offsets are medians of 0.5 mm noise over about 200 frames (below 0.1 mm); a mark
 already leaves a third of the smoother's rows beyond its bound."""
 WINDOW_S: Final = 2.0
 """s: the windows the offsets' medians are taken over (a loose marker moves within a take)."""
-JUMP_M: Final = 20e-3
-"""m: a frame's offset beyond this is a label jump (a swap), left to the filter: twice its
-``gate_min_innovation``, so the marker fails its own gate while the prediction holds, and it
-disagrees with the frame's other markers (:func:`kfusion.kalman.markers.consistent_markers`).
-A marker beyond it in most of its frames is wrongly placed or labelled for good."""
+JUMP_M: Final = LABEL_JUMP_M
+"""m: a frame's offset beyond this is a label jump (a swap), left to the filter: the marker
+fails its own gate while the prediction holds, and it disagrees with the frame's other markers
+(:func:`kfusion.kalman.markers.consistent_markers`). A marker beyond it in most of its frames
+is wrongly placed or labelled for good."""
 MIN_FRAMES: Final = 20
 """Frames with both the rigid body and the marker needed for a window's median."""
 

@@ -162,7 +162,8 @@ def track_bodies(args: argparse.Namespace, bodies: list[Path]) -> int:
                                       "out": str(out / f"{folder.name}{TRACK_SUFFIX}")}))
         return f"body {folder.name}: {output.getvalue().strip()}"
 
-    failures = for_each_body(bodies, track_one, description="track")
+    failures = for_each_body(bodies, track_one, description="track",
+                             output=lambda folder: out / f"{folder.name}{TRACK_SUFFIX}")
     print(f"{len(bodies) - len(failures)} of {len(bodies)} bodies tracked into {out}"
           + (f"; failed: {', '.join(failure.body for failure in failures)}" if failures else ""))
     return 2 if failures else 0
