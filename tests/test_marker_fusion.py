@@ -524,3 +524,23 @@ def test_marker_spec_refuses_a_cluster_the_solver_cannot_solve(positions):
     with pytest.raises(ValueError, match=r"MarkerSpec\.body_positions are nearly collinear "
                        r"\(RMS \d\.\d\d mm off a line, expected at least 5 mm\)"):
         MarkerSpec(body_positions=positions)
+
+
+def test_a_marker_a_few_mm_off_in_many_frames_is_not_fused():
+    # a ghost: M1 moved 7 mm in the first 0.8 s of every 2 s. The 10 mm gate_min_innovation
+    # escape let it through at 0.5 mm noise, and its Kabsch pose tilted the orientation: 36 %
+    # of rows beyond the bound (adversarial review)
+    from kfusion.simulate import MarkerSpec, simulate
+
+    simulation = simulate("random_reach", seed=3, duration=12.0, markers=MarkerSpec())
+    markers = simulation.recording.markers
+    position = np.array(markers.position)
+    ghost = np.mod(markers.t, 2.0) < 0.8
+    position[ghost, 0, 0] += 0.007
+    broken = dataclasses.replace(simulation.recording, markers=dataclasses.replace(
+        markers, position=position))
+    result = run_filter(broken, measurement="markers").result
+    live = result.status != "lost"
+    error = np.linalg.norm(result.position[live] - simulation.truth.position[live], axis=1)
+    bound = np.sqrt(11.34 * np.sum(result.std[live] ** 2, axis=1))
+    assert np.mean(error > bound) <= 0.01, (np.mean(error > bound), np.max(error / bound))

@@ -219,7 +219,7 @@ def marker_nis(y: ArrayLike, S: ArrayLike) -> float:
     return nis if np.isfinite(nis) else float("inf")
 
 
-def marker_pose(points: ArrayLike, body_positions: ArrayLike
+def marker_pose(points: ArrayLike, body_positions: ArrayLike, max_residual: float | None = None
                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """The rigid-body pose ``(p (3,) m, q_global_body (4,) [w, x, y, z], w >= 0)`` from visible
     markers (k, 3) and their body positions (k, 3): the Kabsch fit of
@@ -227,7 +227,8 @@ def marker_pose(points: ArrayLike, body_positions: ArrayLike
     :func:`kfusion.rigid_body.solve_poses` for one frame. None with fewer than
     :data:`~kfusion.rigid_body.MIN_MARKERS` markers, nearly collinear ones (the rotation about
     their line is undetermined), or a marker missing the fitted cluster by more than
-    :data:`~kfusion.rigid_body.DEFAULT_MAX_RESIDUAL` (a swapped marker)."""
+    ``max_residual`` (m; default :data:`~kfusion.rigid_body.DEFAULT_MAX_RESIDUAL`, the
+    converter's) (a swapped marker)."""
     from scipy.spatial.transform import Rotation
 
     from kfusion.conventions import wxyz_from_rotation
@@ -245,6 +246,7 @@ def marker_pose(points: ArrayLike, body_positions: ArrayLike
         return None
     rotation, origin = fit_pose(body, seen)
     misses = seen - origin - body @ rotation.T
-    if float(np.max(np.sum(misses * misses, axis=1))) > DEFAULT_MAX_RESIDUAL ** 2:
+    limit = DEFAULT_MAX_RESIDUAL if max_residual is None else max_residual
+    if float(np.max(np.sum(misses * misses, axis=1))) > limit ** 2:
         return None
     return origin, wxyz_from_rotation(Rotation.from_matrix(rotation))
