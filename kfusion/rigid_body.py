@@ -280,6 +280,16 @@ class BodyMarkers:
     frames: int
 
 
+def points_in_body_frame(position: NDArray[np.float64], quaternion: NDArray[np.float64],
+                         points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Global points in the body frame of each pose: ``b = R_global_body^T (g - p)``. Shapes:
+    position (k, 3) m, quaternion (k, 4) [w, x, y, z], points (k, n, 3) m; result (k, n, 3)
+    (NaN where a point or pose is NaN)."""
+    rotations = matrix_from_wxyz(quaternion)  # (k, 3, 3) R_global_body
+    with np.errstate(invalid="ignore"):
+        return np.einsum("kji,knj->kni", rotations, points - position[:, None, :])
+
+
 def markers_in_body_frame(mocap: MocapFrames, markers: MarkerFrames) -> BodyMarkers:
     """Body-frame marker positions from rigid-body poses and markers seen in the same frames.
 
@@ -298,9 +308,8 @@ def markers_in_body_frame(mocap: MocapFrames, markers: MarkerFrames) -> BodyMark
                          f"times, got {len(mocap)} and {len(markers)} frames")
     both = mocap.visible[:, None] & markers.visible
     seen = np.flatnonzero(mocap.visible)
-    rotations = matrix_from_wxyz(mocap.quaternion[seen])  # (s, 3, 3) R_global_body
-    offsets = markers.position[seen] - mocap.position[seen][:, None, :]  # (s, n, 3)
-    body = np.einsum("sji,snj->sni", rotations, offsets)  # R^T (g - p)
+    body = points_in_body_frame(mocap.position[seen], mocap.quaternion[seen],
+                                markers.position[seen])
     positions = np.zeros((len(markers.names), 3))
     spread = np.zeros(len(markers.names))
     for index, name in enumerate(markers.names):

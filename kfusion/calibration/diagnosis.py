@@ -266,17 +266,12 @@ def half_offsets(y: np.ndarray, design: np.ndarray, correlation: float) -> HalfO
     return HalfOffsets(*found)
 
 
-def confirming_halves(recording: Recording, middle_offset: float,
-                      drift_ppm: float) -> HalfOffsets | None:
-    """The motion's two halves timed apart without a drift (:func:`half_offsets`, around the
-    offset ``middle_offset``, s) when they move the clock the way ``drift_ppm`` does by more
-    than :data:`OFFSET_SIGMAS` sigma; None when they do not confirm it."""
-    middle = 0.5 * float(recording.imu.t[0] + recording.imu.t[-1])
-    y, design = specific_force_system(recording, middle_offset, 0.0,
-                                      recording.info.imu_to_body, time_shift=True,
-                                      drift_shift=True, reference_time=middle)
-    rate = 1.0 / float(np.median(np.diff(recording.mocap.t)))
-    halves = half_offsets(y, design, max(1.0, rate / (2.0 * CUTOFF_HZ)))
+def confirming_halves(y: np.ndarray, design: np.ndarray, drift_ppm: float,
+                      correlation: float) -> HalfOffsets | None:
+    """The motion's two halves timed apart without a drift (:func:`half_offsets` on ``y``,
+    ``design``, built without drift) when they move the clock the way ``drift_ppm`` does by
+    more than :data:`OFFSET_SIGMAS` sigma; None when they do not confirm it."""
+    halves = half_offsets(y, design, correlation)
     if halves is not None and np.sign(halves.change) == np.sign(drift_ppm) and (
             abs(halves.change) > OFFSET_SIGMAS * halves.change_std):
         return halves
@@ -310,8 +305,10 @@ def fine_clock_problem(recording: Recording, start: float, notes: list[str]) -> 
         return (f"IMU clock about {abs(offset) * 1e3:.1f} ms {_side(offset)} the mocap "
                 f"(timed by the accelerometer against the mocap's acceleration, +- "
                 f"{std * 1e3:.1f} ms): {CALIBRATE_FIX}")
+    # one system, linearised at the middle offset without drift: the halves are timed on it,
+    # and its rows' weights and times give the spread (they hardly depend on the drift)
     middle = 0.5 * float(recording.imu.t[0] + recording.imu.t[-1])
-    _, design = specific_force_system(recording, found.offset, found.drift_ppm,
+    y, design = specific_force_system(recording, found.middle_offset, 0.0,
                                       recording.info.imu_to_body, time_shift=True,
                                       drift_shift=True, reference_time=middle)
     spread = informative_time_spread(design)
@@ -323,7 +320,8 @@ def fine_clock_problem(recording: Recording, start: float, notes: list[str]) -> 
         if abs(drift) > DRIFT_SIGMAS * drift_std:
             return (f"IMU clock drifts about {drift:+.0f} +- {drift_std:.0f} ppm against the "
                     f"mocap ({stated}; recording.yaml says 0): {CALIBRATE_FIX}")
-        halves = (confirming_halves(recording, found.middle_offset, drift)
+        rate = 1.0 / float(np.median(np.diff(recording.mocap.t)))
+        halves = (confirming_halves(y, design, drift, max(1.0, rate / (2.0 * CUTOFF_HZ)))
                   if abs(drift) > DRIFT_SIGMAS * found.drift_std_ppm else None)
         if halves is not None:
             return (f"IMU clock drifts about {drift:+.0f} +- {found.drift_std_ppm:.0f} ppm "

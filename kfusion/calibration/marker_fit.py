@@ -25,9 +25,8 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from kfusion.conventions import matrix_from_wxyz
 from kfusion.recording import Recording
-from kfusion.rigid_body import LABEL_JUMP_M
+from kfusion.rigid_body import LABEL_JUMP_M, points_in_body_frame
 
 MARKER_TOLERANCE_M: Final = 1e-3
 """m: a marker whose windowed median offset from its ``markers:`` position exceeds this is
@@ -54,13 +53,18 @@ def body_frame_offsets(recording: Recording) -> tuple[NDArray[np.float64], NDArr
     mocap = recording.mocap
     t, in_mocap, in_markers = np.intersect1d(mocap.t, markers.t, assume_unique=True,
                                              return_indices=True)
-    R = matrix_from_wxyz(mocap.quaternion[in_mocap])  # (k, 3, 3) body -> global
-    relative = markers.position[in_markers] - mocap.position[in_mocap][:, None, :]
     body = np.array([positions[name] for name in markers.names], dtype=float)
-    with np.errstate(invalid="ignore"):
-        offsets = np.einsum("kji,knj->kni", R, relative) - body[None, :, :]
+    offsets = points_in_body_frame(mocap.position[in_mocap], mocap.quaternion[in_mocap],
+                                   markers.position[in_markers]) - body[None, :, :]
     offsets[~mocap.visible[in_mocap]] = np.nan
     return t, offsets
+
+
+def _nanmedian(values: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
+    """``np.nanmedian`` without the warning for an all-NaN slice (NaN there)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.asarray(np.nanmedian(values, axis=axis))
 
 
 def windowed_medians(t: NDArray[np.float64], offsets: NDArray[np.float64],
@@ -75,9 +79,7 @@ def windowed_medians(t: NDArray[np.float64], offsets: NDArray[np.float64],
     for window in np.unique(index):
         rows = offsets[index == window]
         seen = np.isfinite(rows).all(axis=2).sum(axis=0)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns
-            median = np.nanmedian(rows, axis=0)
+        median = _nanmedian(rows)
         median[seen < min_frames] = np.nan
         starts.append(t[0] + window * window_s)
         medians.append(median)
@@ -100,9 +102,7 @@ def marker_problem(recording: Recording) -> str | None:
     seen_frames = np.isfinite(offsets).all(axis=2).sum(axis=0)
     for column, name in enumerate(names):
         if seen_frames[column] and jumped[:, column].sum() > 0.5 * seen_frames[column]:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                overall = np.nanmedian(offsets[:, column], axis=0) + body[name]
+            overall = _nanmedian(offsets[:, column]) + body[name]
             return _misplaced(name, float(np.linalg.norm(overall - body[name])), overall,
                               names, body, f"in {jumped[:, column].sum()} of "
                               f"{seen_frames[column]} frames", fix)
@@ -123,9 +123,7 @@ def marker_problem(recording: Recording) -> str | None:
                     f"{size[worst, column] * 1e3:.1f} mm (median over {WINDOW_S:g} s, at "
                     f"{where}; within {MARKER_TOLERANCE_M * 1e3:g} mm elsewhere): a loose "
                     f"marker?; {fix}")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            overall = np.nanmedian(offsets[:, column], axis=0) + body[name]
+        overall = _nanmedian(offsets[:, column]) + body[name]
         return _misplaced(name, float(size[worst, column]), overall, names, body,
                           f"median over {WINDOW_S:g} s at {where}; at least "
                           f"{smallest * 1e3:.1f} mm throughout", fix)
