@@ -24,7 +24,12 @@ scale of a bin is covariance matching at a quantile (:func:`quantile_matching_sc
 
     s(bin) = quantile_q({s_k in bin}),  q = matching_quantile
 
-clipped to ``[minimum_scale, inf)``. A real gap's position covariance is reported as
+clipped to ``[minimum_scale, inf)``. A scale below 1 also needs enough rows in its bin for the
+quantile to be known (:func:`rows_to_shrink`): the largest of n rows is below the true q-quantile
+with probability q^n, so with fewer than ``ln(1/2) / ln(q)`` rows (139 at q = 0.995) even the
+largest row more likely than not understates it, and the bin's scale stays at least 1 (measured on
+the first 30 s of BROAD trial 21: hold-out bins of 20-60 rows gave smoother scales of 0.12-0.16
+and 36 % of its bridged rows beyond the 99 % bound). A real gap's position covariance is reported as
 ``max(s(bin(h)), s_NIS) P`` at horizon h (beyond the last bin, the last bin's scale), where
 ``s_NIS = mean NIS / 3`` when the windowed NIS test fails high (else no constraint): the bound
 grows as the shadow gaps showed it must, not only as the profile predicts, and shrinks (down to
@@ -177,6 +182,43 @@ def quantile_matching_scale(required: ArrayLike, confidence: float = 0.99) -> fl
     return float(np.quantile(values, confidence))
 
 
+def rows_to_shrink(quantile: float) -> int:
+    """Rows a bin needs before its matched scale may fall below 1: the smallest n with
+    ``1 - quantile^n >= 1/2``, i.e. ``n = ceil(ln(1/2) / ln(quantile))``, so that the largest
+    row (the order statistic :func:`quantile_matching_scale` ends up at with few rows) is at
+    least the true ``quantile`` with probability 1/2 or more. Below that the evidence cannot
+    tell a pessimistic profile from rows that have not yet shown the tail; 1 for
+    ``quantile`` 1 (the largest row is the matched scale by definition)."""
+    if quantile >= 1.0:
+        return 1
+    return math.ceil(math.log(0.5) / math.log(quantile))
+
+
+def fix_covariance_under_scale(covariance: ArrayLike, noise_variance: float, scale: float
+                               ) -> NDArray[np.float64]:
+    """The covariance (3, 3) m^2 of a fused fix's position when the prediction it was fused with
+    was ``scale`` times worse than the filter believed.
+
+    The fix moves the position error to ``e+ = (I - K) e- - K v`` with the filter's gain ``K``.
+    If the prediction's error has covariance ``s P-`` instead of ``P-`` (the monitor's scale for
+    that prediction's horizon), the fused error has ``(I - K) s P- (I - K)^T + K R K^T``, and
+    with ``K = P+ R^-1`` (the position block of the optimal gain, ``R = noise_variance I``) and
+    the Joseph form ``P+ = (I - K) P- (I - K)^T + K R K^T``::
+
+        P_fix = P+ + (s - 1) (P+ - P+ R^-1 P+)
+
+    (scalar check: ``P+ = k r`` with ``k = p / (p + r)``; ``(1 - k)^2 s p + k^2 r``). It is ``P+``
+    when the fix dominates (``P+ -> R``: the prediction did not matter) and ``s P+`` when the
+    prediction does. Only for ``s > 1``: a scale below 1 leaves ``P+`` as it is (the fixes'
+    bound is not shrunk on the shadow gaps' evidence). ``covariance``: ``P+`` (3, 3) m^2."""
+    P = np.asarray(covariance, dtype=float)
+    if not scale > 1.0:
+        return P
+    if not math.isfinite(scale):
+        return np.full((3, 3), math.inf)
+    return P + (scale - 1.0) * (P - P @ P / noise_variance)
+
+
 def horizon_bin(horizon_s: float, edges_s: tuple[float, ...]) -> int:
     """Index of the bin holding ``horizon_s``: bin i is ``(edges[i-1], edges[i]]`` (bin 0 from 0);
     horizons beyond the last edge fall in the last bin."""
@@ -266,7 +308,13 @@ class MonitorParameters:
             little above ``confidence``, since the next gap is not one of the shadow gaps.
         minimum_shadow_gaps: gaps needed before the scale may fall below 1.
         minimum_scale: smallest variance scale (the profile may be pessimistic, but only so far).
-        max_std_scale: beyond this standard-deviation scale the monitor refuses to bridge.
+        max_std_scale: beyond this standard-deviation scale the monitor refuses to bridge. A
+            model that needs more than twice its bound is broken, not merely noisy, and a
+            scaled bound does not cover a systematic error: measured with the monitor's final
+            scale, every BROAD trial needs at most 1.5 and simulated recordings with
+            unmodelled sensor errors at most 1.4, while an undeclared IMU clock offset of 10 ms
+            needs 2.2-2.8 and of 20 ms 4.0-5.4 (with 5.0, 20 ms was bridged with 5.8 % of
+            the Tracker's rows beyond the 99 % bound, up to 4.9x).
         cause_std_scale: std scale above which a cause other than the mocap is named.
         gravity_error_fraction: mean acceleration error along gravity, as a fraction of |g|,
             above which gravity is suspected.
@@ -285,7 +333,7 @@ class MonitorParameters:
     matching_quantile: float = 0.995
     minimum_shadow_gaps: int = 10
     minimum_scale: float = 0.04
-    max_std_scale: float = 5.0
+    max_std_scale: float = 2.0
     cause_std_scale: float = 2.0
     gravity_error_fraction: float = 0.5
     motion_error_acceleration: float = 2.0
@@ -388,16 +436,19 @@ class HorizonScales:
 
     def scale_table(self) -> NDArray[np.float64]:
         """(bins,) variance scale applied per bin: the matched scale, at least ``minimum_scale``
-        (at least 1 before ``minimum_shadow_gaps`` gaps); a bin without evidence takes the
-        largest scale of the bins before it (1 if none)."""
+        (at least 1 before ``minimum_shadow_gaps`` gaps, and in a bin with fewer rows than
+        :func:`rows_to_shrink`); a bin without evidence takes the largest scale of the bins
+        before it (1 if none)."""
         if self._table is not None:
             return self._table
         params = self.params
         floor = params.minimum_scale if self.gaps >= params.minimum_shadow_gaps else 1.0
+        enough = rows_to_shrink(params.matching_quantile)
         table = []
         previous = floor
-        for scale in self.variance_scales():
-            value = previous if math.isnan(scale) else max(scale, floor)
+        for scale, rows in zip(self.variance_scales(), self._rows, strict=True):
+            bin_floor = floor if len(rows) >= enough else max(floor, 1.0)
+            value = previous if math.isnan(scale) else max(scale, bin_floor)
             table.append(value)
             previous = max(previous, value)
         self._table = np.asarray(table, dtype=float)
@@ -437,6 +488,7 @@ class ConsistencyMonitor:
         self._rows_error: list[NDArray[np.float64]] = []
         self._accelerations: deque[NDArray[np.float64]] = deque(maxlen=self.params.nis_window)
         self._last_fix: tuple[float, NDArray[np.float64]] | None = None  # (t s, position (3,) m)
+        self._fix_horizon = math.inf  # s from the fix before the last one to it (its prediction)
         self._gated_fix: NDArray[np.float64] | None = None  # newest fix gated since the last fused
         # (t s, offset (3,) m, covariance (3, 3) m^2) of the prediction a fix replaced after gating
         self._rival: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None
@@ -465,6 +517,7 @@ class ConsistencyMonitor:
             self._nis.append(outcome.nis)
             self._nis_scale_value = None
         if outcome.kind in USED_OUTCOMES and position is not None:
+            self._fix_horizon = math.inf if self._last_fix is None else t - self._last_fix[0]
             self._last_fix = (t, np.array(position, dtype=float))
             if self._gated_fix is not None and prior is not None \
                     and np.isfinite(prior.position).all():
@@ -543,6 +596,18 @@ class ConsistencyMonitor:
             return None
         noise = self._shadow.params.mocap_position_noise ** 2
         return self._last_fix[1].copy(), noise * np.eye(3)
+
+    def at_fix(self, t: float, covariance: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The position covariance (3, 3) m^2 at the time of the last fused fix, t (s), with the
+        prediction it was fused with taken at the scale the shadow gaps found for that
+        prediction's horizon (:func:`fix_covariance_under_scale`; R: the configured mocap noise,
+        the gain's own); ``covariance`` unchanged at any other time (a gap: there the scale of
+        :meth:`variance_scale` applies) or before a second fix (the first only initialises)."""
+        if self._last_fix is None or t != self._last_fix[0] or math.isinf(self._fix_horizon):
+            return covariance
+        return fix_covariance_under_scale(covariance,
+                                          self._shadow.params.mocap_position_noise ** 2,
+                                          self.variance_scale(self._fix_horizon))
 
     def cover_rivals(self, t: float, position: NDArray[np.float64],
                      covariance: NDArray[np.float64]) -> NDArray[np.float64]:

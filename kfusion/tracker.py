@@ -673,6 +673,8 @@ class _KalmanEstimator:
         if step.time_since_fix > 0.0:  # in a gap: the monitor's scale
             scale = self.monitor.variance_scale(step.time_since_fix)
             covariance = covariance * scale
+        else:  # at a fix: fused with a prediction the shadow gaps may have found worse
+            covariance = self.monitor.at_fix(t, covariance)
         covariance = self.monitor.cover_rivals(t, step.position, covariance)
         std = np.sqrt(np.diag(covariance))
         return _Reading(step.position, step.velocity, 0.5 * (covariance + covariance.T), std)

@@ -314,6 +314,14 @@ def apply_monitor(status: NDArray[np.str_], variance: NDArray[np.float64],
     return status.astype(str), variance, scale
 
 
+def at_fix_rows(variance: NDArray[np.float64], at_fix_variance: NDArray[np.float64]
+                ) -> NDArray[np.float64]:
+    """Per-axis variance (m, 3) m^2 with the rows where the monitor widened a fused fix
+    (finite ``at_fix_variance`` (m, 3), :meth:`kfusion.monitor.ConsistencyMonitor.at_fix`)
+    taken from it, as the Tracker reads them."""
+    return np.where(np.isfinite(at_fix_variance), at_fix_variance, variance)
+
+
 def fix_only_rows(status: NDArray[np.str_], position: NDArray[np.float64],
                   variance: NDArray[np.float64], allowed: NDArray[np.bool_],
                   fix_position: NDArray[np.float64], fix_variance: NDArray[np.float64]
@@ -357,6 +365,9 @@ class _RowRecorder:
         # (m^2, the mocap noise and the rivals), NaN elsewhere
         self.fix_position = np.full((rows, 3), np.nan)
         self.fix_variance = np.full((rows, 3), np.nan)
+        # at a fused fix whose prediction the monitor found worse than its P: the variance
+        # per axis (m^2) of ConsistencyMonitor.at_fix, NaN elsewhere
+        self.at_fix_variance = np.full((rows, 3), np.nan)
         self.counters: dict[str, int] = {}
         self._fixed: NDArray[np.bool_] | None = None  # from_kernel: the rows whose fix was used
 
@@ -385,6 +396,10 @@ class _RowRecorder:
             self.output_matrix[row] = H
             self.output_offset[row] = offset
             if self.monitor is not None:
+                covariance = output_covariance(H, fusion._kf.P)
+                at_fix = self.monitor.at_fix(outcome.t, covariance)
+                if at_fix is not covariance:
+                    self.at_fix_variance[row] = np.diag(at_fix)
                 widened = self.monitor.cover_rivals(outcome.t,
                                                     output_point(H, fusion._kf.x, offset),
                                                     np.zeros((3, 3)))
@@ -402,6 +417,7 @@ class _RowRecorder:
         recorder.rival_variance = np.zeros((rows, 3))
         recorder.fix_position = np.full((rows, 3), np.nan)
         recorder.fix_variance = np.full((rows, 3), np.nan)
+        recorder.at_fix_variance = np.full((rows, 3), np.nan)
         recorder.x, recorder.P = run.x, run.P
         recorder.output_matrix, recorder.output_offset = run.output_matrix, run.output_offset
         recorder.outcome = run.outcome.astype(object)
@@ -505,7 +521,7 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
         status, variance, scale = apply_monitor(status, variance, recorder.scale_tables,
                                                 recorder.allowed, since,
                                                 watcher.params.horizon_edges_s)
-        variance = variance + recorder.rival_variance
+        variance = at_fix_rows(variance, recorder.at_fix_variance) + recorder.rival_variance
         status, position, variance = fix_only_rows(status, position, variance,
                                                    recorder.allowed, recorder.fix_position,
                                                    recorder.fix_variance)

@@ -48,6 +48,7 @@ from kfusion.kalman.batch import (
     MARKERS,
     _RowRecorder,
     apply_monitor,
+    at_fix_rows,
     check_engine,
     compiled_points,
     compiled_rows,
@@ -353,7 +354,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         filtered_status, variance, _ = apply_monitor(filtered_status, variance,
                                                      recorder.scale_tables, recorder.allowed,
                                                      since, watcher.params.horizon_edges_s)
-        variance = variance + recorder.rival_variance
+        variance = at_fix_rows(variance, recorder.at_fix_variance) + recorder.rival_variance
         filtered_status, position, variance = fix_only_rows(
             filtered_status, position, variance, recorder.allowed, recorder.fix_position,
             recorder.fix_variance)

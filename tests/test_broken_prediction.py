@@ -1,0 +1,101 @@
+"""A fix fused with a prediction the monitor found worse than its P (kfusion.monitor.at_fix), and
+the refusal to bridge once the IMU model needs more than ``max_std_scale`` times its bound."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kfusion.kalman import run_filter
+from kfusion.monitor import MonitorParameters, fix_covariance_under_scale
+from kfusion.simulate import OcclusionSpec, faults, simulate
+from kfusion.simulate.faults import Streams
+from kfusion.tracker import Tracker
+
+
+def test_fix_covariance_is_that_of_the_filters_gain_under_a_worse_prediction():
+    rng = np.random.default_rng(3)
+    noise_variance = 0.3e-3 ** 2
+    for scale in (1.5, 4.0, 30.0):
+        root = rng.normal(size=(3, 3)) * 0.5e-3
+        prior = root @ root.T + 1e-9 * np.eye(3)  # P- (3, 3) m^2
+        R = noise_variance * np.eye(3)
+        K = prior @ np.linalg.inv(prior + R)  # the filter's gain
+        identity = np.eye(3)
+        posterior = (identity - K) @ prior @ (identity - K).T + K @ R @ K.T  # Joseph
+        # the fused error when the prediction's error is scale * P-: by hand
+        expected = (identity - K) @ (scale * prior) @ (identity - K).T + K @ R @ K.T
+        np.testing.assert_allclose(fix_covariance_under_scale(posterior, noise_variance, scale),
+                                   expected, rtol=1e-9, atol=1e-20)
+
+
+def test_fix_covariance_limits():
+    noise_variance = 1e-6
+    posterior = np.diag([1e-6, 0.5e-6, 1e-9])  # fix dominates, half-half, prediction dominates
+    widened = fix_covariance_under_scale(posterior, noise_variance, 4.0)
+    # scalar: P+ + (s - 1) P+ (1 - P+ / r)
+    np.testing.assert_allclose(np.diag(widened), [1e-6, 0.5e-6 * (1 + 3 * 0.5),
+                                                   1e-9 * (1 + 3 * (1 - 1e-3))])
+    assert fix_covariance_under_scale(posterior, noise_variance, 0.5) is posterior
+    assert fix_covariance_under_scale(posterior, noise_variance, 1.0) is posterior
+
+
+def _clock_offset_recording(offset_s: float, seconds: float = 20.0):
+    simulation = simulate("random_reach", seed=0, imu="mpu9255", duration=seconds,
+                          occlusions=OcclusionSpec(gap_range=(0.1, 0.5), spacing=1.5))
+    return faults.imu_clock_offset(Streams.of(simulation.recording), -offset_s).recording
+
+
+def test_tracker_and_batch_widen_the_same_fixes():
+    recording = _clock_offset_recording(0.01, seconds=10.0)
+    info = recording.info
+    run = run_filter(recording, engine="filterpy")
+    tracker = Tracker(info.imu_to_body, info.gravity, lever_arm=info.lever_arm,
+                      engine="filterpy")
+    imu, mocap = recording.imu, recording.mocap
+    frame = 0
+    tracked_std = {}
+    for row in range(len(imu.t) + 1):
+        while frame < len(mocap.t) and (row == len(imu.t) or mocap.t[frame] < imu.t[row]):
+            visible = bool(mocap.visible[frame])
+            tracker.push_mocap(mocap.t[frame], mocap.position[frame] if visible else None,
+                               mocap.quaternion[frame] if visible else None)
+            estimate = tracker.estimate(mocap.t[frame])
+            if estimate.status == "tracked":
+                tracked_std[frame] = estimate.std
+            frame += 1
+        if row < len(imu.t):
+            tracker.push_imu(imu.t[row], imu.accelerometer[row], imu.gyroscope[row])
+    rows = sorted(tracked_std)
+    batch_std = np.asarray(run.result.std)[rows]
+    np.testing.assert_allclose(np.array([tracked_std[row] for row in rows]), batch_std,
+                               rtol=1e-9)
+    # the monitor widened some fixes: their std exceeds the filter's own posterior's
+    from kfusion.kalman.batch import point_estimates
+
+    _, variance = point_estimates(run.x, run.P, run.output_matrix, run.output_offset)
+    assert (batch_std > 1.05 * np.sqrt(variance[rows])).any()
+
+
+@pytest.mark.parametrize("offset_s", [0.02])
+def test_a_clock_offset_the_monitor_sees_stops_the_bridging(offset_s):
+    # 20 ms undeclared: the shadow gaps need about 4x the std (before max_std_scale 2: bridged
+    # on, with 5.8 % of the Tracker's rows beyond the 99 % bound and errors up to 4.9x it)
+    run = run_filter(_clock_offset_recording(offset_s))
+    assert run.monitor is not None
+    assert not run.monitor.bridging_allowed
+    assert run.monitor.std_scale > MonitorParameters().max_std_scale
+    status = np.asarray(run.result.status)
+    assert (status == "lost").any()
+
+
+def test_unmodelled_sensor_errors_keep_the_bridging():
+    from kfusion.simulate import TYPICAL_UNMODELLED
+
+    simulation = simulate("random_reach", seed=0, imu="mpu9255", duration=30.0,
+                          unmodelled=TYPICAL_UNMODELLED,
+                          occlusions=OcclusionSpec(gap_range=(0.1, 0.3)))
+    run = run_filter(simulation.recording)
+    assert run.monitor is not None
+    assert run.monitor.bridging_allowed
+    assert not (np.asarray(run.result.status) == "lost").any()
