@@ -315,6 +315,11 @@ class MonitorParameters:
             unmodelled sensor errors at most 1.4, while an undeclared IMU clock offset of 10 ms
             needs 2.2-2.8 and of 20 ms 4.0-5.4 (with 5.0, 20 ms was bridged with 5.8 % of
             the Tracker's rows beyond the 99 % bound, up to 4.9x).
+        holdout_max_std_scale: the same for the smoother's hold-out. Its scale is matched on
+            the recording's own gaps, offline, at their own lengths (nothing is extrapolated
+            to gaps still to come), and the smoothed P is small enough that real recordings
+            legitimately need more: BROAD 24 (tapping) needs between 2 and 5 and is covered
+            at 0.986 with it.
         cause_std_scale: std scale above which a cause other than the mocap is named.
         gravity_error_fraction: mean acceleration error along gravity, as a fraction of |g|,
             above which gravity is suspected.
@@ -334,12 +339,14 @@ class MonitorParameters:
     minimum_shadow_gaps: int = 10
     minimum_scale: float = 0.04
     max_std_scale: float = 2.0
+    holdout_max_std_scale: float = 5.0
     cause_std_scale: float = 2.0
     gravity_error_fraction: float = 0.5
     motion_error_acceleration: float = 2.0
 
     def __post_init__(self) -> None:
-        positive = ("shadow_window_s", "shadow_period_s", "minimum_scale", "max_std_scale")
+        positive = ("shadow_window_s", "shadow_period_s", "minimum_scale", "max_std_scale",
+                    "holdout_max_std_scale")
         for name in positive:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):

@@ -56,3 +56,27 @@ def test_smoother_bound_holds_on_a_short_real_recording():
     std = np.asarray(result.std)[rows]
     coverage = float(np.mean((np.abs(error) <= 3 * std).all(axis=1)))
     assert coverage >= 0.97, coverage
+
+
+@pytest.mark.broad
+def test_the_hold_out_keeps_its_own_refusal_limit():
+    # BROAD 24 (tapping) needs a hold-out std scale above the online monitor's limit of 2;
+    # matched on the recording's own gaps it covers them (the online limit would refuse them)
+    from kfusion.datasets import broad_trials
+    from kfusion.evaluate import cut_gaps
+    from kfusion.kalman import run_smoother
+    from kfusion.monitor import MonitorParameters
+    from kfusion.readers.broad import read_broad
+
+    path = next(path for path in broad_trials() if path.name.startswith("24"))
+    gapped = cut_gaps(read_broad(path, mocap_step=3), rng=np.random.default_rng(0),
+                      gap_range=(0.1, 0.3))
+    run = run_smoother(gapped.recording)
+    assert run.holdout is not None
+    assert np.sqrt(run.holdout.scale_table().max()) > MonitorParameters().max_std_scale
+    status = np.asarray(run.result.status)[gapped.gap_mask]
+    assert (status == "bridged").mean() > 0.99
+    rows = gapped.gap_mask & (np.asarray(run.result.status) == "bridged")
+    error = np.asarray(run.result.position)[rows] - np.asarray(gapped.truth_position)[rows]
+    coverage = float(np.mean((np.abs(error) <= 3 * np.asarray(run.result.std)[rows]).all(axis=1)))
+    assert coverage >= 0.95, coverage

@@ -265,6 +265,7 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     # real gaps are in (the online monitor's shadows predict gaps still to come)
     scales = HorizonScales(dataclasses.replace(monitor, memory=len(mocap.t),
                                                horizon_edges_s=monitor.holdout_edges_s,
+                                               max_std_scale=monitor.holdout_max_std_scale,
                                                matching_quantile=monitor.confidence))
     for start, stop in occlusion_runs(~hidden.gap_mask):
         rows = [row for row in range(start, stop) if run.result.status[row] == BRIDGED]
