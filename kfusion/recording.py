@@ -483,6 +483,36 @@ def check_times(path_name: str, t: NDArray[np.float64], empty: NDArray[np.bool_]
         )
 
 
+def check_mapped_times(path_name: str, t: NDArray[np.float64], info: RecordingInfo) -> None:
+    """The IMU stamps ``t`` (s, strictly increasing) must stay strictly increasing once mapped
+    onto the mocap clock (:func:`kfusion.conventions.imu_time_to_mocap` with ``info``'s
+    ``imu_time_offset`` and ``imu_clock_drift_ppm``): a large offset can round two close
+    stamps to one double (at 1e9 s doubles are 1.2e-7 s apart). RecordingError naming the
+    row otherwise."""
+    if info.imu_time_offset == 0.0 and info.imu_clock_drift_ppm == 0.0:
+        return
+    with np.errstate(all="ignore"):
+        mapped = imu_time_to_mocap(t, info.imu_time_offset, info.imu_clock_drift_ppm)
+    if not np.isfinite(mapped).all():
+        row = int(np.flatnonzero(~np.isfinite(mapped))[0])
+        raise RecordingError(path_name, f"timestamp {float(t[row])!r} maps onto the mocap clock "
+                             f"as {float(mapped[row])!r} (imu_time_offset "
+                             f"{info.imu_time_offset!r} s, imu_clock_drift_ppm "
+                             f"{info.imu_clock_drift_ppm!r}); expected a finite time",
+                             row=row + 1, column="t")
+    steps = np.diff(mapped)
+    if (steps <= 0).any():
+        row = int(np.flatnonzero(steps <= 0)[0]) + 1
+        raise RecordingError(
+            path_name,
+            f"timestamp {float(t[row])!r} maps onto the mocap clock at {float(mapped[row])!r} s, "
+            f"not after the previous row's {float(mapped[row - 1])!r} s (imu_time_offset "
+            f"{info.imu_time_offset!r} s, imu_clock_drift_ppm {info.imu_clock_drift_ppm!r}; "
+            f"doubles there are {float(np.spacing(mapped[row])):.2g} s apart); expected stamps "
+            "that stay apart on the mocap clock: store times nearer zero",
+            row=row + 1, column="t")
+
+
 def read_imu(path: str | Path) -> ImuSamples:
     """Read and validate ``imu.csv`` (see module docstring). Raises :class:`RecordingError`."""
     path = Path(path)
@@ -865,6 +895,7 @@ def read_recording(folder: str | Path, *, zero_position_means_occluded: bool = F
                              f"{IMU_FILE}, {MOCAP_FILE} and {META_FILE})")
     info = read_info(folder / META_FILE)
     imu = read_imu(folder / IMU_FILE)
+    check_mapped_times(IMU_FILE, imu.t, info)
     mocap = read_mocap(folder / MOCAP_FILE,
                        zero_position_means_occluded=zero_position_means_occluded)
     markers = None

@@ -369,3 +369,24 @@ def test_absurd_bridging_times_are_refused():
                        r"integer <= 10000, got <an integer of 400 digits>"):
         BaselineParameters(buffer_size=HUGE_INTEGER)
     assert KalmanParameters.from_profiles(max_bridge_s=60).max_bridge_s == 60.0
+
+
+def test_imu_stamps_colliding_on_the_mocap_clock_name_the_row(folder, capsys):
+    # raw stamps 1e-8 s apart, an offset of 1e9 s: one double on the mocap clock (check passed
+    # with numpy warnings and track failed in the filter without naming the row)
+    imu = pd.read_csv(folder / "imu.csv")
+    mocap = pd.read_csv(folder / "mocap.csv")
+    mocap["t"] += 1e9
+    imu.loc[5, "t"] = imu.loc[4, "t"] + 1e-8
+    imu.to_csv(folder / "imu.csv", index=False, float_format="%.17g")
+    mocap.to_csv(folder / "mocap.csv", index=False, float_format="%.17g")
+    with open(folder / "recording.yaml", "a") as stream:
+        stream.write("imu_time_offset: 1000000000.0\n")
+    for command in (["check", str(folder)], ["track", str(folder), "--out",
+                                              str(folder / "t.csv")]):
+        assert main(command) == 2
+        error = capsys.readouterr().err.strip().splitlines()
+        assert len(error) == 1
+        assert "imu.csv, row 6 (line 7), column 't'" in error[0]
+        assert "maps onto the mocap clock" in error[0]
+    assert not (folder / "t.csv").exists()
