@@ -223,13 +223,21 @@ def fix_covariance_under_scale(covariance: ArrayLike, noise_variance: float, sca
     (scalar check: ``P+ = k r`` with ``k = p / (p + r)``; ``(1 - k)^2 s p + k^2 r``). It is ``P+``
     when the fix dominates (``P+ -> R``: the prediction did not matter) and ``s P+`` when the
     prediction does. Only for ``s > 1``: a scale below 1 leaves ``P+`` as it is (the fixes'
-    bound is not shrunk on the shadow gaps' evidence). ``covariance``: ``P+`` (3, 3) m^2."""
+    bound is not shrunk on the shadow gaps' evidence). ``P+ - P+ R^-1 P+`` is positive
+    semi-definite for the optimal gain (``P+ <= R``); where the reported ``P+`` exceeds R (the
+    output point's orientation part, rivals) its negative directions are dropped, so the result
+    is never smaller than ``P+``. ``covariance``: ``P+`` (3, 3) m^2."""
     P = np.asarray(covariance, dtype=float)
     if not scale > 1.0:
         return P
     if not math.isfinite(scale):
         return np.full((3, 3), math.inf)
-    return P + (scale - 1.0) * (P - P @ P / noise_variance)
+    correction = P - P @ P / noise_variance
+    correction = 0.5 * (correction + correction.T)
+    values, vectors = np.linalg.eigh(correction)
+    if values.min() < 0.0:
+        correction = (vectors * np.maximum(values, 0.0)) @ vectors.T
+    return P + (scale - 1.0) * correction
 
 
 def gap_clock_evidence(horizons_s: ArrayLike, errors: ArrayLike, velocity_changes: ArrayLike

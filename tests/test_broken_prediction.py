@@ -36,6 +36,11 @@ def test_fix_covariance_limits():
     # scalar: P+ + (s - 1) P+ (1 - P+ / r)
     np.testing.assert_allclose(np.diag(widened), [1e-6, 0.5e-6 * (1 + 3 * 0.5),
                                                    1e-9 * (1 + 3 * (1 - 1e-3))])
+    # a reported P+ above R (not from the optimal gain): never narrowed
+    above = np.diag([4e-6, 1e-7, 1e-7])
+    widened_above = fix_covariance_under_scale(above, noise_variance, 4.0)
+    assert widened_above[0, 0] == pytest.approx(4e-6)
+    assert (np.linalg.eigvalsh(widened_above - above) >= -1e-20).all()
     assert fix_covariance_under_scale(posterior, noise_variance, 0.5) is posterior
     assert fix_covariance_under_scale(posterior, noise_variance, 1.0) is posterior
 
