@@ -396,3 +396,51 @@ def test_compiled_predict_checks_every_input_form() -> None:
             with pytest.raises(ValueError, match=message):
                 engine.predict(t, accelerometer, gyroscope)
     assert engines[0].counters == engines[1].counters
+
+
+def assert_smoothers_agree(fast, reference) -> None:  # type: ignore[no-untyped-def]
+    """Two SmootherRuns: the same outcomes and statuses, positions within 1e-9 m, filtered
+    and smoothed."""
+    assert fast.outcome.tolist() == reference.outcome.tolist()
+    for mine, theirs in ((fast.result, reference.result), (fast.filtered, reference.filtered)):
+        assert mine.status.tolist() == theirs.status.tolist()
+        np.testing.assert_allclose(mine.position, theirs.position, rtol=0, atol=TOLERANCE_M)
+        np.testing.assert_allclose(mine.std, theirs.std, rtol=1e-7, atol=1e-12)
+
+
+@pytest.mark.parametrize(("case", "save_every"), [("gated_and_reacquired", 7),
+                                                  ("gated_and_reacquired", 1024),
+                                                  ("broad_excerpt", 1024)])
+def test_compiled_smoother_with_the_monitor_equals_filterpy(case: str, save_every: int,
+                                                            monkeypatch: pytest.MonkeyPatch
+                                                            ) -> None:
+    """With the consistency monitor (the default) the compiled smoother runs its forward pass
+    step by step (CompiledFusion, saving packed states every SAVE_EVERY rows; 7: many block
+    boundaries) and the compiled backward pass on them: the rows of KalmanFusion and the numpy
+    backward pass."""
+    from kfusion.kalman import run_smoother
+
+    build, overrides = CASES[case]
+    recording = build()
+    monkeypatch.setattr(compiled, "SAVE_EVERY", save_every)
+    fast = run_smoother(recording, engine="compiled", **overrides)
+    reference = run_smoother(recording, engine="filterpy", **overrides)
+    assert fast.monitor is not None and reference.monitor is not None
+    assert_smoothers_agree(fast, reference)
+    assert (fast.outcome == "gated").any() or case == "broad_excerpt"
+
+
+@pytest.mark.broad
+def test_compiled_smoother_with_the_monitor_equals_filterpy_on_a_broad_trial() -> None:
+    """The same on 20 s of BROAD trial 21 with gaps cut into it."""
+    from kfusion.config import first_seconds
+    from kfusion.datasets import broad_trials
+    from kfusion.evaluate import cut_gaps
+    from kfusion.kalman import run_smoother
+    from kfusion.readers.broad import read_broad
+
+    path = next(path for path in broad_trials() if path.name.startswith("21"))
+    recording = cut_gaps(first_seconds(read_broad(path, mocap_step=3), 20.0),
+                         rng=np.random.default_rng(0), gap_range=(0.1, 0.3)).recording
+    assert_smoothers_agree(run_smoother(recording, engine="compiled"),
+                           run_smoother(recording, engine="filterpy"))

@@ -454,19 +454,31 @@ def compiled_rows(recording: Recording, fusion: KalmanFusion, *, smoothing: bool
     KernelRun`, with the smoother's per-row predictions and transitions when ``smoothing``)."""
     from kfusion.kalman import compiled  # numba loads on first use of the engine
 
-    recording = on_mocap_clock(recording)
-    imu, mocap = recording.imu, recording.mocap
-    if np.isnan(imu.t).any() or np.isnan(mocap.t).any():
+    inputs = kernel_inputs(recording, fusion.params.imu_latency_s)
+    if inputs is None:
         return None  # no place in the fusion order: the filterpy engine names it
-    _, stream, index = merge_order(imu.t, mocap.t, fusion.params.imu_latency_s)
-    frames = np.flatnonzero(stream == MOCAP_STREAM)
-    end = int(frames[-1]) + 1 if len(frames) else 0  # IMU samples after the last row: unused
-    run = compiled.run_kernel(imu.t, imu.accelerometer, imu.gyroscope, mocap.t, mocap.position,
-                              mocap.quaternion, mocap.visible, stream[:end], index[:end],
-                              fusion.kernel_config(), fusion.size, smoothing)
+    imu_t, force, rate, mocap_t, position, quaternion, visible, stream, index = inputs
+    run = compiled.run_kernel(imu_t, force, rate, mocap_t, position, quaternion, visible, stream,
+                              index, fusion.kernel_config(), fusion.size, smoothing)
     if run.failed_event >= 0:
         return None
     return _RowRecorder.from_kernel(fusion, run), run
+
+
+def kernel_inputs(recording: Recording, latency_s: float) -> tuple[NDArray[Any], ...] | None:
+    """The recording on the mocap clock as the compiled kernels' arguments: IMU t, specific
+    force, rate, mocap t, position, quaternion, visible, and the merged events (``stream``,
+    ``index``: :func:`kfusion.kalman.events.merge_order`, the order :func:`process_recording`
+    feeds) up to the last mocap row. None when a time is NaN (no place in the fusion order)."""
+    recording = on_mocap_clock(recording)
+    imu, mocap = recording.imu, recording.mocap
+    if np.isnan(imu.t).any() or np.isnan(mocap.t).any():
+        return None
+    _, stream, index = merge_order(imu.t, mocap.t, latency_s)
+    frames = np.flatnonzero(stream == MOCAP_STREAM)
+    end = int(frames[-1]) + 1 if len(frames) else 0  # IMU samples after the last row: unused
+    return (imu.t, imu.accelerometer, imu.gyroscope, mocap.t, mocap.position,
+            mocap.quaternion, mocap.visible, stream[:end], index[:end])
 
 
 def compiled_points(recorder: _RowRecorder, x: NDArray[np.float64] | None = None,

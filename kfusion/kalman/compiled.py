@@ -1161,16 +1161,17 @@ def rts_step(x_filtered, P_filtered, x_next, P_next, x_predicted, P_predicted, t
 @njit(cache=True)
 def smooth_rows(stream, index, row_event, imu_t, accelerometer, gyroscope, imu_finite,
                 mocap_t, mocap_position, mocap_quaternion, visible, config, first_state,
-                save_every, saved_states, saved_events, segment, x_filtered, P_filtered,
-                x_smoothed, P_smoothed, counters):
-    """The RTS backward pass (:func:`rts_step`) over rows m-1..0 without the forward pass's
-    per-row predictions and transitions: blocks of ``save_every`` rows, last block first, run
-    the forward loop again (:func:`filter_events`, the same arithmetic: the same bits) from
-    the state saved before the block (``first_state`` for the first block) to get them. Row k
-    is smoothed from row k+1 where both are in one ``segment`` (m,) (-1: no state, left NaN);
-    the last row of a segment keeps its filtered state. ``row_event`` (m,): each row's event.
-    Fills ``x_smoothed`` (m, n), ``P_smoothed`` (m, n, n); ``counters``: scratch."""
-    m, n = x_filtered.shape
+                save_every, saved_states, saved_events, segment, x, P, counters):
+    """The RTS backward pass (:func:`rts_step`) over rows m-1..0, in place: ``x`` (m, n) and
+    ``P`` (m, n, n) hold the filtered states and become the smoothed ones (row k's filtered
+    state is read once, by the step that writes its smoothed one; row k+1 is smoothed by then).
+    Without the forward pass's per-row predictions and transitions: blocks of ``save_every``
+    rows, last block first, run the forward loop again (:func:`filter_events`, the same
+    arithmetic: the same bits) from the state saved before the block (``first_state`` for the
+    first block) to get them. Row k is smoothed from row k+1 where both are in one ``segment``
+    (m,) (-1: no state, set to NaN); the last row of a segment keeps its filtered state.
+    ``row_event`` (m,): each row's event; ``counters``: scratch."""
+    m, n = x.shape
     x_predicted = np.full((save_every, n), math.nan)
     P_predicted = np.full((save_every, n, n), math.nan)
     transitions = np.full((save_every, n, n), math.nan)
@@ -1183,10 +1184,6 @@ def smooth_rows(stream, index, row_event, imu_t, accelerometer, gyroscope, imu_f
     scratch_dead_reckoned = np.empty(save_every, dtype=np.bool_)
     no_states = np.zeros((0, 0))
     no_events = np.zeros(0, dtype=np.int64)
-    for k in range(m):
-        if segment[k] >= 0 and (k + 1 == m or segment[k + 1] != segment[k]):
-            x_smoothed[k] = x_filtered[k]
-            P_smoothed[k] = P_filtered[k]
     blocks = (m + save_every - 1) // save_every
     for block in range(blocks - 1, -1, -1):
         first_row = block * save_every
@@ -1208,9 +1205,12 @@ def smooth_rows(stream, index, row_event, imu_t, accelerometer, gyroscope, imu_f
             if k < 0 or segment[k] < 0 or segment[k + 1] != segment[k]:
                 continue
             j = k + 1 - first_row
-            x_smoothed[k], P_smoothed[k] = rts_step(
-                x_filtered[k], P_filtered[k], x_smoothed[k + 1], P_smoothed[k + 1],
-                x_predicted[j], P_predicted[j], transitions[j])
+            x[k], P[k] = rts_step(x[k], P[k], x[k + 1], P[k + 1], x_predicted[j],
+                                  P_predicted[j], transitions[j])
+    for k in range(m):
+        if segment[k] < 0:
+            x[k] = math.nan
+            P[k] = math.nan
 
 
 @njit(cache=True)
@@ -1292,8 +1292,8 @@ class KernelRun:
         self.counters = counters
         self.failed_event = failed_event
         # smoother support (run_kernel(smoothing=True)): the kernel inputs, configuration,
-        # first state and the states saved every SAVE_EVERY rows, for smooth_run
-        self.replay: tuple = ()
+        # first state and the states saved every SAVE_EVERY rows, for smooth_in_place
+        self.replay: Replay | None = None
 
 
 def _kernel_array(values: NDArray[np.generic], dtype: type) -> NDArray[np.generic]:
@@ -1307,6 +1307,37 @@ SAVE_EVERY: Final = 1024
 (:func:`smooth_rows`): per row it keeps 1/SAVE_EVERY of a packed state."""
 
 
+def kernel_inputs(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
+                  gyroscope: NDArray[np.float64], mocap_t: NDArray[np.float64],
+                  mocap_position: NDArray[np.float64], mocap_quaternion: NDArray[np.float64],
+                  visible: NDArray[np.bool_], stream: NDArray[np.int64],
+                  index: NDArray[np.int64]) -> tuple:
+    """The recording arguments of :func:`filter_events` and :func:`smooth_rows` in their order
+    (``stream``, ``index``, IMU t, accelerometer, gyroscope, each sample's finiteness, mocap t,
+    position, quaternion, visible): C-contiguous writeable arrays of the kernels' types."""
+    force = _kernel_array(accelerometer, float)
+    rate = _kernel_array(gyroscope, float)
+    finite = np.isfinite(force).all(axis=1) & np.isfinite(rate).all(axis=1)
+    return (_kernel_array(stream, np.int64), _kernel_array(index, np.int64),
+            _kernel_array(imu_t, float), force, rate, finite,
+            _kernel_array(mocap_t, float), _kernel_array(mocap_position, float),
+            _kernel_array(mocap_quaternion, float), _kernel_array(visible, bool))
+
+
+class Replay:
+    """What the compiled backward pass (:func:`smooth_in_place`) needs of a forward pass: the
+    kernel inputs (:func:`kernel_inputs`), ``config``, the first packed state and the states
+    saved after every :data:`SAVE_EVERY`-th row (``saved_states`` (m // SAVE_EVERY, packed
+    size)), from the whole-loop kernel or a step-by-step run on the same events."""
+
+    def __init__(self, inputs: tuple, config: NDArray[np.float64],
+                 first_state: NDArray[np.float64], saved_states: NDArray[np.float64]) -> None:
+        self.inputs = inputs
+        self.config = config
+        self.first_state = first_state
+        self.saved_states = saved_states
+
+
 def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
                gyroscope: NDArray[np.float64], mocap_t: NDArray[np.float64],
                mocap_position: NDArray[np.float64], mocap_quaternion: NDArray[np.float64],
@@ -1315,16 +1346,11 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     """Run :func:`filter_events` over merged events (``stream``, ``index`` (e,) each:
     :func:`kfusion.kalman.events.merge_order`). Shapes: IMU (n,), (n, 3), (n, 3); mocap (m,),
     (m, 3), (m, 4), (m,); ``config`` from :func:`pack_config`; n states ``size``. With
-    ``smoothing`` the run keeps what :func:`smooth_run` needs (the inputs and the states
-    saved every :data:`SAVE_EVERY` rows)."""
+    ``smoothing`` the run keeps what :func:`smooth_in_place` needs (``replay``: the inputs and
+    the states saved every :data:`SAVE_EVERY` rows)."""
     rows = len(mocap_t)
-    inputs = (_kernel_array(stream, np.int64), _kernel_array(index, np.int64),
-              _kernel_array(imu_t, float), _kernel_array(accelerometer, float),
-              _kernel_array(gyroscope, float), None, _kernel_array(mocap_t, float),
-              _kernel_array(mocap_position, float), _kernel_array(mocap_quaternion, float),
-              _kernel_array(visible, bool))
-    finite = np.isfinite(inputs[3]).all(axis=1) & np.isfinite(inputs[4]).all(axis=1)
-    inputs = inputs[:5] + (finite,) + inputs[6:]
+    inputs = kernel_inputs(imu_t, accelerometer, gyroscope, mocap_t, mocap_position,
+                           mocap_quaternion, visible, stream, index)
     out_x = np.full((rows, size), np.nan)
     out_P = np.full((rows, size, size), np.nan)
     out_H = np.zeros((rows, 3, size))
@@ -1340,7 +1366,7 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     saved = rows // SAVE_EVERY if smoothing else 0
     saved_states = np.zeros((saved, len(state)))
     saved_events = np.zeros(saved, dtype=np.int64)
-    failed = filter_events(
+    failed = filter_events(  # type: ignore[call-arg]
         inputs[0], inputs[1], 0, len(stream), *inputs[2:], config, state, counters, 0, out_x,
         out_P, out_H, out_offset, out_outcome, out_nis, out_dead_reckoned,
         np.zeros((0, size)), no_rows, no_rows, save_every, saved_states, saved_events)
@@ -1348,34 +1374,34 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
                     out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(), strict=True)),
                     int(failed))
     if smoothing:
-        run.replay = (inputs, config, first_state, saved_states, saved_events)
+        run.replay = Replay(inputs, config, first_state, saved_states)
     return run
 
 
-def smooth_run(run: KernelRun, segments: list[tuple[int, int]]
-               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Smoothed (x (m, n), P (m, n, n)) of a forward run made with ``smoothing``
-    (:func:`smooth_rows`), each of ``segments`` ((first, stop) row ranges) smoothed on its own
-    (NaN elsewhere)."""
-    inputs, config, first_state, saved_states, saved_events = run.replay
-    m, n = run.x.shape
+def smooth_in_place(replay: Replay, x: NDArray[np.float64], P: NDArray[np.float64],
+                    segments: list[tuple[int, int]]) -> None:
+    """Smooth the filtered states ``x`` (m, n), ``P`` (m, n, n) of a forward pass in place
+    (:func:`smooth_rows`), each of ``segments`` ((first, stop) row ranges) on its own, NaN
+    elsewhere. ``replay``: that forward pass's (:class:`Replay`)."""
+    inputs = replay.inputs
+    m = x.shape[0]
     segment = np.full(m, -1, dtype=np.int64)
     for number, (first, stop) in enumerate(segments):
         segment[first:stop] = number
     row_event = np.flatnonzero(inputs[0] == 1).astype(np.int64)
-    x_smoothed = np.full((m, n), np.nan)
-    P_smoothed = np.full((m, n, n), np.nan)
+    saved = len(replay.saved_states)
+    # the event after the saved row (rows SAVE_EVERY - 1, 2 SAVE_EVERY - 1, ...)
+    saved_events = row_event[SAVE_EVERY - 1::SAVE_EVERY][:saved] + 1
     if m:
-        smooth_rows(inputs[0], inputs[1], row_event, *inputs[2:], config,  # type: ignore[call-arg]
-                    first_state, SAVE_EVERY, saved_states, saved_events, segment, run.x, run.P,
-                    x_smoothed, P_smoothed, np.zeros(len(COUNTER_INDEX), dtype=np.int64))
-    return x_smoothed, P_smoothed
+        smooth_rows(inputs[0], inputs[1], row_event, *inputs[2:], replay.config,  # type: ignore[call-arg]
+                    replay.first_state, SAVE_EVERY, replay.saved_states, saved_events,
+                    segment, x, P, np.zeros(len(COUNTER_INDEX), dtype=np.int64))
 
 
 def saved_bytes_per_row(rows: int, size: int) -> float:
-    """Bytes per row the compiled smoother keeps beyond its filtered and smoothed (x, P): the
-    states saved every :data:`SAVE_EVERY` rows (and their event numbers)."""
-    return (rows // SAVE_EVERY) * (packed_size(size) + 1) * 8 / max(rows, 1)
+    """Bytes per row the compiled smoother keeps beyond its (x, P) per row: the states saved
+    every :data:`SAVE_EVERY` rows."""
+    return (rows // SAVE_EVERY) * packed_size(size) * 8 / max(rows, 1)
 
 
 _OUTCOME_LOOKUP: Final = np.array(OUTCOME_NAMES + ("",))

@@ -37,7 +37,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,6 +53,7 @@ from kfusion.kalman.batch import (
     compiled_points,
     compiled_rows,
     fix_only_rows,
+    kernel_inputs,
     make_fusion,
     make_monitor,
     marker_inputs,
@@ -69,6 +70,7 @@ from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, USED_OUTCOMES, U
 from kfusion.kalman.markers import shared_run_lengths
 from kfusion.kalman.parameters import KalmanParameters
 from kfusion.monitor import (
+    ConsistencyMonitor,
     HorizonScales,
     MonitorParameters,
     MonitorReport,
@@ -78,6 +80,9 @@ from kfusion.monitor import (
 )
 from kfusion.recording import Recording, occlusion_durations, occlusion_runs
 from kfusion.track_file import TrackResult
+
+if TYPE_CHECKING:
+    from kfusion.kalman.compiled import Replay  # numba: loaded with the compiled engine only
 
 
 def rts_step(x_filtered: NDArray[np.float64], P_filtered: NDArray[np.float64],
@@ -117,13 +122,16 @@ def rts_backward(x_filtered: NDArray[np.float64], P_filtered: NDArray[np.float64
 class SmootherRun:
     """Smoother output with the forward filter's, one row per mocap row.
 
+    The forward filter's rows are kept as point estimates (``filtered``), not as states: the
+    compiled backward pass overwrites each filtered state with the smoothed one, so a run keeps
+    one (x, P) per row. The filtered states are :func:`kfusion.kalman.run_filter`'s (the same
+    forward filter; the monitor never changes its state).
+
     Attributes:
         result: smoothed TrackResult (method ``smoother``).
         filtered: the forward filter's TrackResult (method ``kalman``) from the same pass.
         x: (m, n) smoothed state (n = 9 or 12; NaN before the first fix).
         P: (m, n, n) smoothed covariance.
-        x_filtered: (m, n) forward filtered states.
-        P_filtered: (m, n, n) their covariance.
         outcome: (m,) update outcomes of the forward pass.
         nis: (m,) NIS of each row's fix in the forward pass (NaN where none was compared).
         params: the parameters used.
@@ -136,8 +144,6 @@ class SmootherRun:
     filtered: TrackResult
     x: NDArray[np.float64]
     P: NDArray[np.float64]
-    x_filtered: NDArray[np.float64]
-    P_filtered: NDArray[np.float64]
     outcome: NDArray[np.str_]
     nis: NDArray[np.float64]
     params: KalmanParameters
@@ -275,6 +281,41 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     return scales
 
 
+def compiled_steps(recording: Recording, params: KalmanParameters,
+                   watcher: ConsistencyMonitor | None
+                   ) -> tuple[_RowRecorder, Replay] | None:
+    """The smoother's forward pass on the compiled engine step by step
+    (:class:`kfusion.kalman.compiled_fusion.CompiledFusion` fed by :func:`kfusion.kalman.batch.
+    process_recording`, watched by the consistency monitor ``watcher``), keeping each row's
+    filtered state and the packed state after every :data:`~kfusion.kalman.compiled.
+    SAVE_EVERY`-th row, from which the compiled backward pass recomputes the per-row
+    predictions (:func:`kfusion.kalman.compiled.smooth_in_place`): the monitor only reads the
+    filter (snapshots for its shadow filter, estimates as priors), so the kernel's replay of the
+    same events gives the same predictions. None when a time is NaN (the caller runs the
+    filterpy engine, whose error names it)."""
+    from kfusion.kalman import compiled
+
+    inputs = kernel_inputs(recording, params.imu_latency_s)
+    if inputs is None:
+        return None
+    fusion: Any = make_fusion(recording, params, "compiled")
+    recorder = _RowRecorder(fusion, len(recording.mocap), watcher)
+    every = compiled.SAVE_EVERY
+    saved_states = np.zeros((len(recording.mocap) // every, compiled.packed_size(fusion.size)))
+
+    def on_row(row: int, outcome: UpdateOutcome) -> None:
+        recorder.record(row, outcome)
+        if (row + 1) % every == 0:
+            saved_states[(row + 1) // every - 1] = fusion.snapshot().state
+
+    process_recording(recording, fusion, on_row, watcher)
+    recorder.finish()
+    config = make_fusion(recording, params).kernel_config()  # CompiledFusion's, built alike
+    replay = compiled.Replay(compiled.kernel_inputs(*inputs), config,
+                             compiled.initial_state(fusion.size), saved_states)
+    return recorder, replay
+
+
 def run_smoother(recording: Recording, params: KalmanParameters | None = None, *,
                  monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008 (frozen)
                  measurement: str = BODY, engine: str = DEFAULT_ENGINE,
@@ -295,23 +336,22 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     check_engine(engine)
     engine = measurement_engine(engine, measurement)
     params = resolve_parameters(recording, params, overrides)
-    fusion = make_fusion(recording, params)
-    watcher = make_monitor(recording, params, monitor)
+    watcher = make_monitor(recording, params, monitor, engine)
     m = len(recording.mocap)
-    size = fusion.size
-    rows = (compiled_rows(recording, fusion, smoothing=True)
-            if engine == "compiled" and watcher is None else None)
+    rows: tuple[_RowRecorder, Replay] | None = None
+    if engine == "compiled" and watcher is None:
+        # the whole forward loop in one kernel, saving a state every SAVE_EVERY rows
+        kernel = compiled_rows(recording, make_fusion(recording, params), smoothing=True)
+        rows = None if kernel is None else (kernel[0], kernel[1].replay)
+    elif engine == "compiled":
+        # the monitor watches the filter event by event: the compiled filter step by step
+        rows = compiled_steps(recording, params, watcher)
+    replay = None
     if rows is not None:
-        # the compiled backward pass recomputes the per-row predictions and transitions block
-        # by block from states the forward pass saved (kfusion.kalman.compiled.smooth_rows)
-        from kfusion.kalman import compiled
-
-        recorder, kernel_run = rows
-        x_filtered, P_filtered = recorder.x, recorder.P
-        x_smoothed, P_smoothed = compiled.smooth_run(
-            kernel_run, initialised_segments(recorder.outcome.astype(str),
-                                             recorder.initialised))
+        recorder, replay = rows
     else:
+        fusion = make_fusion(recording, params)
+        size = fusion.size
         recorder = _RowRecorder(fusion, m, watcher)
         x_predicted = np.full((m, size), np.nan)
         P_predicted = np.full((m, size, size), np.nan)
@@ -330,17 +370,10 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
 
         process_recording(recording, fusion, on_row, watcher, measurement, offline=True)
         recorder.finish()
-        x_filtered, P_filtered = recorder.x, recorder.P
-        x_smoothed = np.full((m, size), np.nan)
-        P_smoothed = np.full((m, size, size), np.nan)
-        for first, stop in initialised_segments(recorder.outcome.astype(str),
-                                                recorder.initialised):
-            x_smoothed[first:stop], P_smoothed[first:stop] = rts_backward(
-                x_filtered[first:stop], P_filtered[first:stop], x_predicted[first:stop],
-                P_predicted[first:stop], transitions[first:stop])
+    segments = initialised_segments(recorder.outcome.astype(str), recorder.initialised)
     t = np.array(recording.mocap.t)
     fixed = recorder.fixed
-    status_engine = "compiled" if rows is not None else "filterpy"
+    status_engine = "compiled" if replay is not None else "filterpy"
     filtered_status, since = status_from_fixes(t, fixed, recorder.initialised,
                                                params.max_bridge_s, recorder.dead_reckoned,
                                                engine=status_engine)
@@ -348,8 +381,8 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     smoothed_status = smoother_status(t, fixed, params.max_bridge_s, recorder.dead_reckoned,
                                       engine=status_engine)
 
-    position, variance = (compiled_points(recorder) if rows is not None else
-                          point_estimates(x_filtered, P_filtered, recorder.output_matrix,
+    position, variance = (compiled_points(recorder) if replay is not None else
+                          point_estimates(recorder.x, recorder.P, recorder.output_matrix,
                                           recorder.output_offset))
     if watcher is not None:
         filtered_status, variance, _ = apply_monitor(filtered_status, variance,
@@ -361,10 +394,25 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
             recorder.fix_variance)
     filtered = TrackResult(t=t, position=position, std=np.sqrt(variance),
                            status=filtered_status, time_since_fix=since, method="kalman")
+    if replay is not None:
+        # in place: the recorder's filtered states become the smoothed ones (the filtered
+        # rows' point estimates are in `filtered`); the backward pass recomputes the per-row
+        # predictions and transitions block by block from the saved states
+        from kfusion.kalman import compiled
+
+        compiled.smooth_in_place(replay, recorder.x, recorder.P, segments)
+        x_smoothed, P_smoothed = recorder.x, recorder.P
+    else:
+        x_smoothed = np.full((m, recorder.x.shape[1]), np.nan)
+        P_smoothed = np.full(recorder.P.shape, np.nan)
+        for first, stop in segments:
+            x_smoothed[first:stop], P_smoothed[first:stop] = rts_backward(
+                recorder.x[first:stop], recorder.P[first:stop], x_predicted[first:stop],
+                P_predicted[first:stop], transitions[first:stop])
     status = smoothed_status
     filtered_variance = variance
     position, variance = (compiled_points(recorder, x_smoothed, P_smoothed)
-                          if rows is not None else
+                          if replay is not None else
                           point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
                                           recorder.output_offset))
     if measurement == MARKERS:
@@ -398,8 +446,8 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     return SmootherRun(
         result=TrackResult(t=t, position=position, std=std, status=status,
                            time_since_fix=since, method="smoother"),
-        filtered=filtered, x=x_smoothed, P=P_smoothed, x_filtered=x_filtered,
-        P_filtered=P_filtered, outcome=recorder.outcome.astype(str), nis=recorder.nis,
+        filtered=filtered, x=x_smoothed, P=P_smoothed, outcome=recorder.outcome.astype(str),
+        nis=recorder.nis,
         params=params, monitor=None if watcher is None else watcher.report(), holdout=holdout,
         output_matrix=recorder.output_matrix)
 
