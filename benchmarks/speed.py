@@ -101,18 +101,24 @@ def sweep(runs: int, seconds: float, engine: str, monitor: bool) -> tuple[float,
     return end - warm, float(sum(filtering))
 
 
-def smoother_bytes_per_row(seconds: float) -> tuple[int, int, int]:
-    """(state size n, bytes of x and P per row, bytes the compiled smoother keeps per row: its
-    filtered and smoothed x and P, and the states its forward pass saves for the backward pass,
-    which recomputes the per-row predictions and transitions from them block by block)."""
+def smoother_bytes_per_row(seconds: float) -> tuple[int, int, int, int]:
+    """(state size n, bytes of x and P per row, bytes the compiled smoother keeps per row, the
+    same with the output maps). Kept: one x and P per row (the backward pass overwrites the
+    filtered state with the smoothed one, in place), the forward filter's point estimates
+    (position and variance per axis: the filtered rows' result), and the packed states the
+    forward pass saves every SAVE_EVERY rows (the backward pass recomputes the per-row
+    predictions and transitions from them block by block). The output maps (H, c per row) turn
+    states into points; they are counted in the last number."""
     from kfusion.kalman import compiled
 
     run = run_smoother(recording(seconds), monitor=None, engine="compiled")
-    n = run.x.shape[1]
+    assert run.output_matrix is not None
+    rows, n = run.x.shape
     state = 8 * (n + n * n)
-    kept = sum(array.nbytes for array in (run.x, run.P, run.x_filtered, run.P_filtered))
-    kept += compiled.saved_bytes_per_row(len(run.x), n) * len(run.x)
-    return n, state, int(round(kept / len(run.x)))
+    kept = run.x.nbytes + run.P.nbytes + 2 * run.filtered.position.nbytes
+    kept += compiled.saved_bytes_per_row(rows, n) * rows
+    maps = run.output_matrix.nbytes + 8 * 3 * rows
+    return n, state, int(round(kept / rows)), int(round((kept + maps) / rows))
 
 
 def push_imu_median(engine: str, seconds: float) -> float:
@@ -210,8 +216,9 @@ def main() -> None:
         median = push_imu_median(engine, 10.0)
         rows.append((f"Tracker.push_imu in order, engine {engine}", f"median {median * 1e6:.0f} µs",
                      ""))
-    n, state, kept = smoother_bytes_per_row(seconds)
-    rows.append((f"compiled smoother memory per row ({n} states)", f"{kept} bytes",
+    n, state, kept, with_maps = smoother_bytes_per_row(seconds)
+    rows.append((f"compiled smoother memory per row ({n} states): x, P, filtered points, "
+                 "saved states", f"{kept} bytes ({with_maps} with the output maps H, c)",
                  f"{kept / state:.3f}x the state's {state} bytes (x, P)"))
     rows.append(("import kfusion.tracker (no numba)", f"{import_time() * 1e3:.0f} ms", ""))
     if not args.quick:
