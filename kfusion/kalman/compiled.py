@@ -250,8 +250,15 @@ def conjugate(q):
 @njit(cache=True)
 def rotation_matrix(q):
     """``R`` (3, 3) of a unit quaternion (kfusion.conventions' entries)."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
     R = np.empty((3, 3))
+    rotation_into(q, R)
+    return R
+
+
+@njit(cache=True)
+def rotation_into(q, R):
+    """:func:`rotation_matrix` into ``R`` (3, 3), in place."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
     R[0, 0] = 1 - 2 * (y * y + z * z)
     R[0, 1] = 2 * (x * y - w * z)
     R[0, 2] = 2 * (x * z + w * y)
@@ -261,7 +268,6 @@ def rotation_matrix(q):
     R[2, 0] = 2 * (x * z - w * y)
     R[2, 1] = 2 * (y * z + w * x)
     R[2, 2] = 1 - 2 * (x * x + y * y)
-    return R
 
 
 @njit(cache=True)
@@ -668,6 +674,33 @@ def accumulate_transition(interval, F):
 
 
 @njit(cache=True)
+def work_size(n):
+    """Length of the scratch array of the prediction (:func:`work_views`)."""
+    return 2 * n * n + n + 18 + 12 + 18 + 6
+
+
+@njit(cache=True)
+def work_views(work, n):
+    """Views ``(products (2, n, n), blocks (2, 3, 3), control (n,), f0 (3,), omega0 (3,),
+    previous low-pass (3,), R0 (3, 3), R1 (3, 3), f (3,), omega (3,))`` into one scratch array
+    (:func:`work_size`): the IMU prediction's temporaries, allocated once per kernel call
+    instead of once per sample."""
+    end = 2 * n * n
+    products = work[0:end].reshape((2, n, n))
+    blocks = work[end:end + 18].reshape((2, 3, 3))
+    end += 18
+    control = work[end:end + n]
+    end += n
+    f0, omega0, previous_low_pass = work[end:end + 3], work[end + 3:end + 6], work[end + 6:end + 9]
+    end += 12
+    R0 = work[end:end + 9].reshape((3, 3))
+    R1 = work[end + 9:end + 18].reshape((3, 3))
+    end += 18
+    return (products, blocks, control, f0, omega0, previous_low_pass, R0, R1,
+            work[end:end + 3], work[end + 3:end + 6])
+
+
+@njit(cache=True)
 def advance_without_imu(t, x, P, orientation, scalars, config, counters, interval):
     """No IMU over [time, t]: ``p' = p + v dt``, ``v' = v``, white acceleration q::
 
@@ -709,16 +742,20 @@ def squared_distance(a, b):
 
 @njit(cache=True)
 def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config,
-                     counters, interval):
+                     counters, interval, work):
     """Predict over [time, t] with the IMU (:meth:`KalmanFusion._advance_with_imu`): the
     specific force and rate linear between the interval's ends (or the held sample held),
     the orientation propagated, then ``x <- F x + B u``, ``P <- F P F^T + Q`` with
-    ``u = [f0; f1; g]`` (:mod:`kfusion.kalman.model`)."""
+    ``u = [f0; f1; g]`` (:mod:`kfusion.kalman.model`). ``work``: scratch (:func:`work_views`;
+    its f, omega may be ``f_end``, ``omega_end``)."""
     dt = t - scalars[TIME]
     n = x.shape[0]
     if not math.isnan(scalars[ACCELEROMETER]) and orientation[14] != 0.0:
-        f0 = scalars[ACCELEROMETER:ACCELEROMETER + 3].copy()
-        omega0 = scalars[GYROSCOPE:GYROSCOPE + 3].copy()
+        (products, blocks, control, f0, omega0, previous_low_pass, R0, R1, _,
+         _) = work_views(work, n)
+        for i in range(3):
+            f0[i] = scalars[ACCELEROMETER + i]
+            omega0[i] = scalars[GYROSCOPE + i]
         if new_sample:
             f1 = f_end
             omega1 = omega_end
@@ -731,13 +768,14 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
         else:
             f1 = f0
             omega1 = omega0
-        R0 = rotation_matrix(orientation[0:4])
+        rotation_into(orientation[0:4], R0)
         angle_variance = orientation[7]
         orientation_propagate(orientation, omega0, omega1, dt,
                               scalars[GYROSCOPE_EXTRA] * dt * dt, config)
-        R1 = rotation_matrix(orientation[0:4])
+        rotation_into(orientation[0:4], R1)
         had_low_pass = not math.isnan(scalars[LOW_PASS])
-        previous_low_pass = scalars[LOW_PASS:LOW_PASS + 3].copy()
+        for i in range(3):
+            previous_low_pass[i] = scalars[LOW_PASS + i]
         if had_low_pass:
             weight = -math.expm1(-dt / _LOW_PASS_TAU)
             for i in range(3):
@@ -760,13 +798,11 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
                 0.0) / 36.0 + _motion_acceleration_variance(
                     squared_distance(f1, scalars[LOW_PASS:LOW_PASS + 3]), dt, scale,
                     _LOW_PASS_TAU)
-            blocks = np.empty((2, 3, 3))
             imu_blocks(R0, R1, dt, blocks)
-            control = np.empty(n)
             control_term(R0, R1, dt, f0, f1, config, control)
             pp, pv, vv, bb = noise_terms(dt, acceleration_variance, bias_variance, config)
-            structured_predict(x, P, dt, blocks, control, pp, pv, vv, bb, config,
-                               np.empty((2, n, n)), interval)
+            structured_predict(x, P, dt, blocks, control, pp, pv, vv, bb, config, products,
+                               interval)
         if not state_finite(x, P, orientation):
             reset(x, P, orientation, scalars, counters)
     scalars[TIME] = t
@@ -774,7 +810,7 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
 
 @njit(cache=True)
 def advance(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config, counters,
-            interval):
+            interval, work):
     """Propagate to t: with the IMU where it covers the interval, the no-IMU model
     after (:func:`kfusion.streamhealth.imu_interval_split`)."""
     if math.isnan(scalars[TIME]):
@@ -794,42 +830,52 @@ def advance(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config,
     if covered < t:
         if covered > state_time:
             advance_with_imu(covered, False, f_end, omega_end, x, P, orientation, scalars,
-                             config, counters, interval)
+                             config, counters, interval, work)
         advance_without_imu(t, x, P, orientation, scalars, config, counters, interval)
         return
     advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config,
-                     counters, interval)
+                     counters, interval, work)
 
 
 @njit(cache=True)
 def limit(sample, sensor_range):
     """Clip a saturated sample (an axis at 99.9 % of the range or beyond) to the range;
     returns (sample, extra variance ``(range/2)^2`` or 0)."""
+    clipped = np.empty(3)
+    extra = limit_into(sample, sensor_range, clipped)
+    return clipped, extra
+
+
+@njit(cache=True)
+def limit_into(sample, sensor_range, out):
+    """:func:`limit` into ``out`` (3,); returns the extra variance."""
     largest = max(abs(sample[0]), abs(sample[1]), abs(sample[2]))
     if largest < _SATURATION_FRACTION * sensor_range:
-        return sample.copy(), 0.0
-    clipped = np.empty(3)
+        out[0], out[1], out[2] = sample[0], sample[1], sample[2]
+        return 0.0
     for i in range(3):
-        clipped[i] = min(max(sample[i], -sensor_range), sensor_range)
-    return clipped, 0.25 * sensor_range * sensor_range
+        out[i] = min(max(sample[i], -sensor_range), sensor_range)
+    return 0.25 * sensor_range * sensor_range
 
 
 @njit(cache=True)
 def predict_step(stamp, f_raw, omega_raw, x, P, orientation, scalars, config, counters,
-                 interval):
+                 interval, work):
     """One finite IMU sample with a stamp after the last (:meth:`KalmanFusion.
     _predict_valid`): reject _IMPLAUSIBLE values, clip saturated ones, advance to
-    ``t = stamp - latency`` with the first-order hold, hold the sample."""
+    ``t = stamp - latency`` with the first-order hold, hold the sample. ``work``: scratch
+    (:func:`work_views`)."""
     largest = 0.0
     for i in range(3):
         largest = max(largest, abs(f_raw[i]), abs(omega_raw[i]))
     if largest > _IMPLAUSIBLE:
         counters[1] += 1
         return
-    f, acc_extra = limit(f_raw, config[C_ACC_RANGE])
+    f, omega = work_views(work, x.shape[0])[8:10]
+    acc_extra = limit_into(f_raw, config[C_ACC_RANGE], f)
     if acc_extra != 0.0:
         counters[5] += 1
-    omega, gyro_extra = limit(omega_raw, config[C_GYRO_RANGE])
+    gyro_extra = limit_into(omega_raw, config[C_GYRO_RANGE], omega)
     if gyro_extra != 0.0:
         counters[6] += 1
     t = stamp - config[C_LATENCY]
@@ -840,7 +886,8 @@ def predict_step(stamp, f_raw, omega_raw, x, P, orientation, scalars, config, co
         if t < scalars[TIME]:
             counters[4] += 1
     else:
-        advance(t, True, f, omega, x, P, orientation, scalars, config, counters, interval)
+        advance(t, True, f, omega, x, P, orientation, scalars, config, counters, interval,
+                work)
     scalars[ACCELEROMETER:ACCELEROMETER + 3] = f
     scalars[GYROSCOPE:GYROSCOPE + 3] = omega
     scalars[ACCELEROMETER_EXTRA] = acc_extra
@@ -915,7 +962,7 @@ def initialise(t, z, H, offset, x, P, scalars, config, counters):
 
 @njit(cache=True)
 def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation, scalars,
-                config, counters, interval, prior_x, prior_P):
+                config, counters, interval, prior_x, prior_P, work):
     """One mocap frame (:meth:`KalmanFusion._update_valid`): advance to t holding the
     sample, gate the orientation, initialise or gate and fuse the position::
 
@@ -926,7 +973,7 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
     n = x.shape[0]
     advance(t, False, scalars[ACCELEROMETER:ACCELEROMETER + 3],
             scalars[GYROSCOPE:GYROSCOPE + 3], x, P, orientation, scalars, config, counters,
-        interval)
+            interval, work)
     scalars[LAST_FRAME_FUSED] = 0.0
     if not visible:
         counters[8] += 1
@@ -1047,7 +1094,7 @@ def packed_predict(stamp, a0, a1, a2, g0, g1, g2, state, config, counters, n):
     f[0], f[1], f[2] = a0, a1, a2
     omega[0], omega[1], omega[2] = g0, g1, g2
     predict_step(stamp, f, omega, x, P, orientation, scalars, config, counters,
-                 np.zeros((0, 0)))
+                 np.zeros((0, 0)), np.empty(work_size(n)))
 
 
 @njit(cache=True)
@@ -1057,7 +1104,7 @@ def packed_update(t, visible, z, q_global_body, has_quaternion, state, config, c
     x, P, orientation, scalars, prior_x, prior_P = state_views(state, n)
     kind, nis, _ = update_step(t, visible, z, q_global_body, has_quaternion, x, P,
                                orientation, scalars, config, counters, np.zeros((0, 0)),
-                               prior_x, prior_P)
+                               prior_x, prior_P, np.empty(work_size(n)))
     return kind, nis
 
 
@@ -1094,6 +1141,7 @@ pass runs the loop again from there (:func:`smooth_rows`)."""
     x, P, orientation, scalars, prior_x, prior_P = state_views(state, size)
     smoothing = out_transition.shape[0] > 0
     interval = np.eye(size) if smoothing else np.zeros((0, 0))
+    work = np.empty(work_size(size))
     for event in range(begin, end):
         row = index[event]
         if stream[event] == 0:
@@ -1113,7 +1161,7 @@ pass runs the loop again from there (:func:`smooth_rows`)."""
                     continue
                 return event
             predict_step(stamp, accelerometer[row], gyroscope[row], x, P, orientation,
-                         scalars, config, counters, interval)
+                         scalars, config, counters, interval, work)
             continue
         t = mocap_t[row]
         if not visible[row] and not math.isnan(scalars[TIME]) and t < scalars[TIME]:
@@ -1121,7 +1169,7 @@ pass runs the loop again from there (:func:`smooth_rows`)."""
         kind, nis, fused = update_step(t, visible[row], mocap_position[row],
                                        mocap_quaternion[row], True, x, P, orientation,
                                        scalars, config, counters, interval, prior_x,
-                                       prior_P)
+                                       prior_P, work)
         out = row - row_offset
         out_outcome[out] = kind
         out_nis[out] = nis
