@@ -675,8 +675,26 @@ def accumulate_transition(interval, F):
 
 @njit(cache=True)
 def work_size(n):
-    """Length of the scratch array of the prediction (:func:`work_views`)."""
-    return 2 * n * n + n + 18 + 12 + 18 + 6
+    """Length of the scratch array of the prediction and the update (:func:`work_views`,
+    :func:`update_views`)."""
+    return 2 * n * n + n + 18 + 12 + 18 + 6 + 9 * n + 24
+
+
+@njit(cache=True)
+def update_views(work, n):
+    """Views ``(H (3, n), offset (3,), y (3,), P H^T (n, 3), S (3, 3), S^-1 (3, 3), K (n, 3))``
+    into the scratch array after :func:`work_views`' (the update's temporaries)."""
+    start = 2 * n * n + n + 18 + 12 + 18 + 6
+    H = work[start:start + 3 * n].reshape((3, n))
+    start += 3 * n
+    offset, y = work[start:start + 3], work[start + 3:start + 6]
+    start += 6
+    PHT = work[start:start + 3 * n].reshape((n, 3))
+    start += 3 * n
+    S = work[start:start + 9].reshape((3, 3))
+    S_inverse = work[start + 9:start + 18].reshape((3, 3))
+    start += 18
+    return H, offset, y, PHT, S, S_inverse, work[start:start + 3 * n].reshape((n, 3))
 
 
 @njit(cache=True)
@@ -903,23 +921,45 @@ def predict_step(stamp, f_raw, omega_raw, x, P, orientation, scalars, config, co
 def output_map(q_global_imu, n, config):
     """(H, c): rigid-body point ``= H x + c`` at ``q_global_imu``
     (:meth:`KalmanFusion._output_map`)."""
+    H = np.empty((3, n))
+    offset = np.empty(3)
+    output_map_into(q_global_imu, config, H, offset, np.empty((3, 3)))
+    return H, offset
+
+
+@njit(cache=True)
+def output_map_into(q_global_imu, config, H, offset, rotation):
+    """:func:`output_map` into H (3, n) and ``offset`` (3,); ``rotation`` (3, 3) scratch::
+
+        H = [I 0 0] (and -R_global_body on the lever-arm states), c = -R_global_body l
+    with ``R_global_body = R(q_global_imu) R_imu_body`` (the terms in :func:`matmul`'s and
+    :func:`matvec`'s order)."""
     p = int(config[C_POSITION])
     lever_state = int(config[C_LEVER_STATE])
-    H = np.zeros((3, n))
-    offset = np.zeros(3)
+    H[:, :] = 0.0
+    offset[:] = 0.0
     for i in range(3):
         H[i, p + i] = 1.0
     if config[C_LEVER_GIVEN] == 0.0 and lever_state < 0:
-        return H, offset
-    R_imu_body = config[C_R_IMU_BODY:C_R_IMU_BODY + 9].copy().reshape(3, 3)
-    R_global_body = matmul(rotation_matrix(q_global_imu), R_imu_body)
-    if lever_state >= 0:
-        for i in range(3):
-            for j in range(3):
-                H[i, lever_state + j] = -R_global_body[i, j]
-        return H, offset
-    offset[:] = -matvec(R_global_body, config[C_LEVER:C_LEVER + 3].copy())
-    return H, offset
+        return
+    rotation_into(q_global_imu, rotation)
+    for i in range(3):
+        body0 = 0.0
+        body1 = 0.0
+        body2 = 0.0
+        for k in range(3):
+            a = rotation[i, k]
+            if a != 0.0:
+                body0 += a * config[C_R_IMU_BODY + 3 * k]
+                body1 += a * config[C_R_IMU_BODY + 3 * k + 1]
+                body2 += a * config[C_R_IMU_BODY + 3 * k + 2]
+        if lever_state >= 0:
+            H[i, lever_state] = -body0
+            H[i, lever_state + 1] = -body1
+            H[i, lever_state + 2] = -body2
+        else:
+            offset[i] = -(((0.0 + body0 * config[C_LEVER]) + body1 * config[C_LEVER + 1])
+                          + body2 * config[C_LEVER + 2])
 
 
 @njit(cache=True)
@@ -1005,21 +1045,18 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
         orientation[9] = config[C_INITIAL_GYRO_BIAS_VARIANCE]
         orientation[14] = 1.0
         scalars[LAST_ORIENTATION_FIX] = t
-    H, offset = output_map(q_global_imu if has_orientation else orientation[0:4].copy(), n,
-                           config)
+    H, offset, y, PHT, S, S_inverse, K = update_views(work, n)
+    output_map_into(q_global_imu if has_orientation else orientation[0:4], config, H, offset,
+                    work_views(work, n)[6])
     if scalars[INITIALISED_FLAG] == 0.0:
         initialise(t, z, H, offset, x, P, scalars, config, counters)
         return _INITIALISED, math.nan, False
     noise_variance = config[C_POSITION_NOISE] ** 2
-    y = np.empty(3)
     for k in range(3):
         total = 0.0
         for j in range(n):
             total += H[k, j] * x[j]
         y[k] = (z[k] - offset[k]) - total
-    PHT = np.empty((n, 3))
-    S = np.empty((3, 3))
-    S_inverse = np.empty((3, 3))
     innovation_covariance(P, H, noise_variance, PHT, S)
     inverse3(S, S_inverse)
     nis = 0.0
@@ -1055,7 +1092,7 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
     if kind == _REACQUIRED and nis > config[C_GATE]:  # P inflated: S again
         innovation_covariance(P, H, noise_variance, PHT, S)
         inverse3(S, S_inverse)
-    position_update(x, P, y, S_inverse, S, PHT, np.empty((n, 3)))
+    position_update(x, P, y, S_inverse, S, PHT, K)
     if has_orientation:
         orientation_correct(orientation, q_global_imu, config)
         scalars[LAST_ORIENTATION_FIX] = t
@@ -1177,9 +1214,8 @@ pass runs the loop again from there (:func:`smooth_rows`)."""
         if scalars[INITIALISED_FLAG] != 0.0:
             out_x[out] = x
             out_P[out] = P
-            H, offset = output_map(orientation[0:4].copy(), size, config)
-            out_H[out] = H
-            out_offset[out] = offset
+            output_map_into(orientation[0:4], config, out_H[out], out_offset[out],
+                            work_views(work, size)[6])
             if smoothing:
                 out_x_predicted[out] = prior_x if fused else x
                 out_P_predicted[out] = prior_P if fused else P
