@@ -21,7 +21,7 @@ from kfusion.kalman.engines import DEFAULT_ENGINE, ENGINES
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, merge_events, merge_order
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
 from kfusion.kalman.markers import shared_run_lengths
-from kfusion.kalman.model import output_covariance, output_point
+from kfusion.kalman.model import output_covariance, output_point, timestamp_jitter
 from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
 from kfusion.monitor import ConsistencyMonitor, MonitorParameters, MonitorReport
 from kfusion.recording import Recording, on_mocap_clock
@@ -36,6 +36,7 @@ def resolve_parameters(recording: Recording, params: KalmanParameters | None,
     ``overrides``."""
     if params is None:
         measured = recording.info.imu_noise.overrides() if recording.info.imu_noise else {}
+        measured = {**measured, "timestamp_jitter": timestamp_jitter(recording.imu.t)}
         return KalmanParameters.from_profiles(recording.info.imu, None,
                                               **{**measured, **overrides})
     if not isinstance(params, KalmanParameters):

@@ -75,7 +75,8 @@ C_GRAVITY = 35  # (3)
 C_LEVER = 38  # (3) given lever arm
 C_LEVER_GIVEN = 41
 C_POSITION, C_VELOCITY, C_BIAS, C_LEVER_STATE = 42, 43, 44, 45  # layout block starts (-1: none)
-CONFIG_SIZE: Final = 46
+C_TIMESTAMP_JITTER = 46  # s, 1-sigma IMU stamp error (model.stamp_jitter_variance)
+CONFIG_SIZE: Final = 47
 
 COUNTER_INDEX: Final = {name: index for index, name in enumerate(
     ("predictions", "imu_rejected", "imu_duplicates", "imu_dropouts", "imu_late",
@@ -112,6 +113,7 @@ def pack_config(params: KalmanParameters, q_body_imu: tuple[float, float, float,
     config[C_MAX_BRIDGE] = params.max_bridge_s
     config[C_DROPOUT] = params.imu_dropout_s
     config[C_TILT_INFLATION] = params.tilt_error_inflation
+    config[C_TIMESTAMP_JITTER] = params.timestamp_jitter
     config[C_GATING] = 1.0 if params.gating else 0.0
     config[C_Q_BODY_IMU:C_Q_BODY_IMU + 4] = q_body_imu
     config[C_R_IMU_BODY:C_R_IMU_BODY + 9] = np.asarray(R_imu_body, dtype=float).ravel()
@@ -157,6 +159,7 @@ _NOISE_QUANTILE = model.NOISE_CHANGE_QUANTILE
 _LOW_PASS_TAU = model.LOW_PASS_TIME_CONSTANT
 _SCALE_COHERENCE = model.SCALE_ERROR_COHERENCE_S
 _motion_acceleration_variance = njit(cache=True)(model.motion_acceleration_variance)
+_stamp_jitter_variance = njit(cache=True)(model.stamp_jitter_variance)
 _SATURATION_FRACTION = model.SATURATION_FRACTION
 _IMPLAUSIBLE = model.IMPLAUSIBLE_SAMPLE
 
@@ -815,7 +818,8 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
                 squared_distance(f0, f1) - 2.0 * _NOISE_QUANTILE * noise_variance,
                 0.0) / 36.0 + _motion_acceleration_variance(
                     squared_distance(f1, scalars[LOW_PASS:LOW_PASS + 3]), dt, scale,
-                    _LOW_PASS_TAU)
+                    _LOW_PASS_TAU) + _stamp_jitter_variance(
+                        squared_distance(f0, f1), dt, config[C_TIMESTAMP_JITTER])
             imu_blocks(R0, R1, dt, blocks)
             control_term(R0, R1, dt, f0, f1, config, control)
             pp, pv, vv, bb = noise_terms(dt, acceleration_variance, bias_variance, config)

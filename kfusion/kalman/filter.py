@@ -804,7 +804,10 @@ class KalmanFusion:
                                          + model.motion_acceleration_variance(
                                              _squared_distance(f1, low_pass), dt,
                                              params.accelerometer_scale_error,
-                                             model.LOW_PASS_TIME_CONSTANT))
+                                             model.LOW_PASS_TIME_CONSTANT)
+                                         + model.stamp_jitter_variance(
+                                             _squared_distance(f0, f1), dt,
+                                             params.timestamp_jitter))
                 F, B = self._F, self._B
                 model.fill_interval(F, B, R0, R1, dt)
                 model.control_input(f0, f1, self._gravity, out=self._u)

@@ -326,6 +326,57 @@ def motion_acceleration_variance(dynamic_force_squared: float, dt: float, scale_
     return scale_error * scale_error * dynamic_force_squared * correlation_time / dt
 
 
+def stamp_jitter_variance(change_squared: float, dt: float, timestamp_jitter: float) -> float:
+    """Acceleration variance (per axis, (m/s^2)^2, held over one interval of dt s: the
+    ``acceleration_variance`` of :func:`process_noise`) for IMU timestamps with random errors
+    of 1-sigma ``timestamp_jitter`` (s).
+
+    Sample k, taken at tau_k, is stamped ``t_k = tau_k + d_k``. The filter integrates the mean
+    acceleration a_k of an interval over the stamped length, so the velocity increment is off by
+    ``a_k (d_(k+1) - d_k)``. Summed over a run of intervals this telescopes::
+
+        sum_k a_k (d_(k+1) - d_k) = a_(n-1) d_n - a_0 d_0 - sum_(k=1..n-1) d_k (a_k - a_(k-1))
+
+    The end terms are the velocity the stamps of the two ends mislabel (bounded, re-observed at
+    every fix); the sum is a random walk with independent steps of per-axis variance at most
+    ``timestamp_jitter^2 |a_k - a_(k-1)|^2``. Held over dt, that is an acceleration variance::
+
+        acceleration_variance = timestamp_jitter^2 |da|^2 / dt^2
+
+    with ``change_squared`` = ``|da|^2`` the squared change of the acceleration over the step
+    (the filter uses the change of the measured specific force, ``|f1 - f0|^2``, which also holds
+    the rotation of gravity in the IMU frame: an upper bound). Zero without jitter (a clock
+    that stamps on the sample instant) and at rest. Plain float arithmetic, so that the
+    compiled engine compiles this same function.
+    """
+    if dt <= 0.0:
+        return 0.0
+    return timestamp_jitter * timestamp_jitter * change_squared / (dt * dt)
+
+
+def timestamp_jitter(t: NDArray[np.float64]) -> float:
+    """1-sigma random error (s) of a stream's timestamps t (n,) s, measured from the scatter of
+    its sample intervals around their median.
+
+    With stamps ``t_k = tau_k + d_k`` on a regular clock and independent errors d_k of
+    variance s^2, each interval ``t_(k+1) - t_k = dt + d_(k+1) - d_k`` scatters with variance
+    ``2 s^2``, so::
+
+        s = 1.4826 median(|interval - median(interval)|) / sqrt(2)
+
+    (the median absolute deviation, scaled to a standard deviation, is blind to the few
+    dropouts and bursts that a mean square would count as jitter). 0.0 for fewer than three
+    stamps or a regular clock.
+    """
+    stamps = np.asarray(t, dtype=float)
+    stamps = stamps[np.isfinite(stamps)]
+    if len(stamps) < 3:
+        return 0.0
+    intervals = np.diff(stamps)
+    deviation = float(np.median(np.abs(intervals - np.median(intervals))))
+    return 1.482602218505602 * deviation / math.sqrt(2.0)
+
+
 NOISE_CHANGE_QUANTILE = float(chi2.ppf(0.99, 3))
 """99 % quantile of chi-square(3): sample-to-sample changes below it are left to the noise."""
 

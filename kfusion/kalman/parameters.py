@@ -83,6 +83,11 @@ class KalmanParameters:
         marker_position_noise: 1-sigma per axis of one marker's position, m, > 0 (marker-level
             fusion, :meth:`kfusion.kalman.KalmanFusion.update_markers`). A rigid body solved
             from k markers has about ``marker_position_noise / sqrt(k)``.
+        timestamp_jitter: 1-sigma random error of each IMU timestamp, s, >= 0. It adds
+            acceleration noise wherever the acceleration changes
+            (:func:`kfusion.kalman.model.stamp_jitter_variance`). The batch runs measure it from
+            the recording's own IMU intervals (:func:`kfusion.kalman.model.timestamp_jitter`)
+            unless the caller gives it; 0 for a clock that stamps on the sample instant.
     """
 
     accelerometer_noise_density: float
@@ -107,13 +112,14 @@ class KalmanParameters:
     imu_dropout_s: float = 0.1
     tilt_error_inflation: float = 1.0
     marker_position_noise: float = 0.5e-3
+    timestamp_jitter: float = 0.0
 
     def __post_init__(self) -> None:
         non_negative = (
             "gyroscope_noise_density", "gyroscope_bias_random_walk", "mocap_orientation_noise",
             "initial_bias_std", "initial_gyroscope_bias_std", "reacquire_after_s",
             "tilt_error_inflation", "accelerometer_scale_error", "gyroscope_scale_error",
-            "lever_arm_std", "gate_min_innovation",
+            "lever_arm_std", "gate_min_innovation", "timestamp_jitter",
         )
         # The accelerometer's densities are the only process noise of the position, velocity
         # and bias states: zero claims a noiseless accelerometer, the covariance collapses (with

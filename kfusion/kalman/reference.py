@@ -172,6 +172,9 @@ class _Reference:
         fast = f1 - self.low_pass
         held += (params.accelerometer_scale_error ** 2 * (fast @ fast)
                  * LOW_PASS_TIME_CONSTANT / dt)
+        # stamp errors d_k: the velocity misses a_k (d_(k+1) - d_k); a random walk of steps
+        # jitter^2 |a_k - a_(k-1)|^2, held over dt (model.stamp_jitter_variance)
+        held += params.timestamp_jitter ** 2 * ((f1 - f0) @ (f1 - f0)) / dt ** 2
         Q = np.zeros((self.n, self.n))
         Q[POSITION, POSITION] = (white * dt ** 4 + held * dt ** 4 / 4) * np.eye(3)
         Q[POSITION, VELOCITY] = Q[VELOCITY, POSITION] = (
