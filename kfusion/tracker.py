@@ -902,7 +902,8 @@ class Tracker:
         self._replays = 0
         self._log: deque[tuple] = deque()
         self._checkpoints: deque[_Checkpoint] = deque()
-        self._pending: deque[tuple] = deque()
+        self._pending: deque[tuple] = deque()  # deferred IMU samples, in time order
+        self._rollback: tuple[float, int] | None = None  # key of the first behind fused frames
         self._newest: tuple[float, int] | None = None
         self._imu_newest = -math.inf  # time of the newest IMU event that arrived to be fused
         self._mocap_newest = -math.inf  # the same for frames, and the last frame period, s
@@ -1308,7 +1309,7 @@ class Tracker:
         self._log, self._checkpoints = state["log"], state["checkpoints"]
         self._resets, self._replays = state["resets"], state["replays"]
         self._watch, self._guard = state["watch"], state["guard"]
-        self._newest, self._pending = state["newest"], deque()
+        self._newest, self._pending, self._rollback = state["newest"], deque(), None
         self._imu_newest, self._mocap_newest, self._frame_period = state["horizons"]
 
     @_locked
@@ -1340,6 +1341,7 @@ class Tracker:
         self._log = deque()
         self._checkpoints = deque()
         self._pending = deque()
+        self._rollback = None
         self._newest = None
         self._imu_newest = self._mocap_newest = -math.inf
         self._frame_period = math.inf
@@ -1355,6 +1357,7 @@ class Tracker:
         seen = _STREAMS_SEEN[imu != -math.inf, mocap != -math.inf]
         verdict = self._guard.check(t, stream, imu if imu > mocap else mocap, seen)
         if verdict == REBASE:
+            self._flush()  # the deferred samples count before the restart
             self._estimator = self._new_estimator()
             self._start_streams(keep_counters=True)
         return verdict == IMPLAUSIBLE
@@ -1375,44 +1378,83 @@ class Tracker:
     def _fuse(self, event: tuple) -> str | None:
         """Fuse a validated event in time order; its outcome, or None if too late to insert.
 
-        After the newest fused event (the common case): fused now, after the pending frames
-        that come before it. Behind it: inserted by :meth:`_insert` (the late-arrival policy
-        in the module docstring).
+        After the newest fused event (the common case): fused now. An IMU sample behind fused
+        frames, or after deferred samples, is deferred (:meth:`_defer`). A frame fuses the
+        deferred samples before it first (:meth:`_flush`), then is fused now, or inserted by
+        :meth:`_insert` behind fused IMU samples (the late-arrival policy in the module
+        docstring).
         """
         key = (event[0], event[1])
         if key[1] == IMU_STREAM:
             if key[0] > self._imu_newest:
                 self._imu_newest = key[0]
+            if self._pending or (self._book.key is not None and key < self._book.key):
+                return self._defer(event, key)
         elif key[0] > self._mocap_newest:
             self._frame_period = key[0] - self._mocap_newest  # inf after the first frame
             self._mocap_newest = key[0]
+        if self._pending:
+            self._flush(key)
         newest = self._newest
         if newest is None or key > newest:
             self._newest = key
-            if self._pending:
-                self._flush()
             return self._fuse_next(event)
         if event[0] < newest[0] - self.options.max_delay_s:
             return None
         fused = self._book.key
-        if fused is None or key > fused:  # behind pending frames only: no state to undo
-            self._flush(key)
+        if fused is None or key > fused:  # behind deferred samples only: no state to undo
             return self._fuse_next(event)
         return self._insert(event, key)
 
+    def _defer(self, event: tuple, key: tuple[float, int]) -> str | None:
+        """Defer an IMU sample that arrived behind fused frames or after deferred samples:
+        it waits (pending) until a frame arrives, the state is read (:meth:`_flush`), or the
+        deferred samples span more than ``checkpoint_interval_s``. Behind fused frames, the
+        checkpoint before it will be restored then (``_rollback``, its key), once for all
+        the samples deferred. ``accepted``, or None when too late (older than ``max_delay_s``
+        behind the newest event, or no checkpoint before it)."""
+        newest = self._newest
+        assert newest is not None  # a fused or pending event came before
+        if event[0] < newest[0] - self.options.max_delay_s:
+            return None
+        fused = self._book.key
+        if self._rollback is None and fused is not None and key < fused:  # behind frames
+            checkpoints = self._checkpoints
+            if not checkpoints or not checkpoints[0].key < key:
+                return None
+            self._rollback = key
+        pending = self._pending
+        if key > newest:
+            self._newest = key
+        pending.append(event)  # the IMU stream is in order: pending stays sorted
+        if event[0] - pending[0][0] > self.options.checkpoint_interval_s:
+            self._flush()
+        return ACCEPTED
+
     def _insert(self, event: tuple, key: tuple[float, int]) -> str | None:
-        """Fuse ``event`` (key ``key``) behind fused events: restore the newest checkpoint
-        before it and fuse the logged events after that checkpoint again, with ``event`` in
-        its place. The logged events after a late IMU sample are all mocap frames (the IMU
-        stream is in order): they wait as pending frames until the IMU passes them, a frame
-        follows or the state is read (:meth:`_flush`). After a late frame, everything is fused
-        again at once (its IMU samples come after it)."""
+        """Fuse a frame ``event`` (key ``key``) behind fused IMU samples: restore the newest
+        checkpoint before it and fuse the logged events after that checkpoint again, with
+        ``event`` in its place."""
         checkpoints = self._checkpoints
         index = len(checkpoints) - 1
         while index >= 0 and not checkpoints[index].key < key:
             index -= 1
         if index < 0:
             return None
+        later = self._rewind(index)
+        split = 0
+        while split < len(later) and (later[split][0], later[split][1]) < key:
+            self._fuse_next(later[split])
+            split += 1
+        outcome = self._fuse_next(event, late_frame=event[1] == MOCAP_STREAM)
+        for logged in later[split:]:
+            self._fuse_next(logged)
+        return outcome
+
+    def _rewind(self, index: int) -> list[tuple]:
+        """Restore checkpoint ``index`` (dropping the newer ones) and take the logged events
+        after it off the log: they are returned, in time order, to be fused again."""
+        checkpoints = self._checkpoints
         checkpoint = checkpoints[index]
         while len(checkpoints) > index + 1:
             checkpoints.pop()
@@ -1424,22 +1466,27 @@ class Tracker:
             later.append(log.pop())
         later.reverse()
         self._replays += 1
-        split = 0
-        while split < len(later) and (later[split][0], later[split][1]) < key:
-            self._fuse_next(later[split])
-            split += 1
-        outcome = self._fuse_next(event, late_frame=event[1] == MOCAP_STREAM)
-        if event[1] == IMU_STREAM:
-            self._pending.extendleft(reversed(later[split:]))  # frames, before pending ones
-        else:
-            for logged in later[split:]:
-                self._fuse_next(logged)
-        return outcome
+        return later
 
     def _flush(self, before: tuple[float, int] | None = None) -> None:
-        """Fuse the pending frames (those with a key before ``before``; None: all)."""
+        """Fuse the deferred IMU samples (those with a key before ``before``; None: all),
+        first restoring the checkpoint before the oldest when it arrived behind fused frames
+        and fusing the frames again in their place."""
         pending = self._pending
-        while pending and (before is None or (pending[0][0], pending[0][1]) < before):
+        rollback = self._rollback
+        if rollback is not None and (before is None or rollback < before):
+            self._rollback = None
+            checkpoints = self._checkpoints
+            index = len(checkpoints) - 1
+            while not checkpoints[index].key < rollback:  # one exists (_defer)
+                index -= 1
+            taken = []
+            while pending and (before is None or _event_key(pending[0]) < before):
+                taken.append(pending.popleft())
+            for event in sorted(self._rewind(index) + taken, key=_event_key):
+                self._fuse_next(event)
+            return
+        while pending and (before is None or _event_key(pending[0]) < before):
             self._fuse_next(pending.popleft())
 
     def _fuse_next(self, event: tuple, *, late_frame: bool = False) -> str:
@@ -1640,6 +1687,11 @@ def _parameters(method: str, params: Any, profile: ImuProfile) -> Any:
         return BaselineParameters.from_mapping(params)
     raise ValueError(f"Tracker: params: expected BaselineParameters or a mapping for method "
                      f"'baseline', got {type(params).__name__}")
+
+
+def _event_key(event: tuple) -> tuple[float, int]:
+    """An event's (t, stream): its place in the fusion order."""
+    return event[0], event[1]
 
 
 def _finite_reading(reading: _Reading, has_covariance: bool) -> bool:
