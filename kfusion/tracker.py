@@ -626,18 +626,26 @@ class _KalmanEstimator:
         self.imu_dropout_s = float(params.imu_dropout_s)
         self.accelerometer_range = float(params.accelerometer_range)
         self.imu_latency_s = float(params.imu_latency_s)
+        # the monitor's state besides its shadow (ConsistencyMonitor.state_snapshot) changes
+        # only at frames and restores: one copy serves the checkpoints in between
+        self._monitor_state: object | None = None
+        self._reckoning: float | None = None  # dead_reckoning_until() until the next event
 
     def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
         """A sample the tracker validated: t a finite float after the previous sample's stamp,
         accelerometer (3,) finite floats, gyroscope 3 finite floats."""
+        self._reckoning = None
         if self._predict_valid is not None:
             a0, a1, a2 = accelerometer.tolist()
-            self._predict_valid(t, a0, a1, a2, *gyroscope)
-        else:
-            self._fusion.predict(t, accelerometer, gyroscope)
+            g0, g1, g2 = gyroscope
+            self._predict_valid(t, a0, a1, a2, g0, g1, g2)
+            self.monitor.imu_valid(t, a0, a1, a2, g0, g1, g2)  # its shadow is compiled too
+            return
+        self._fusion.predict(t, accelerometer, gyroscope)
         self.monitor.imu(t, accelerometer, gyroscope)
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str:
+        self._reckoning = self._monitor_state = None
         prior = self._fusion.estimate(t) if self.monitor.has_gated_fix else None
         outcome = self._fusion.update(t, position, quaternion)
         self.monitor.mocap(t, position, outcome, self._fusion, prior)
@@ -647,6 +655,7 @@ class _KalmanEstimator:
                        ) -> tuple[str, int, int]:
         """Fuse a marker frame (:meth:`KalmanFusion.update_markers`); (reason, markers used,
         markers rejected). The monitor sees the markers' Kabsch origin as the frame's fix."""
+        self._reckoning = self._monitor_state = None
         prior = self._fusion.estimate(t) if self.monitor.has_gated_fix else None
         outcome = self._fusion.update_markers(t, observed, body)
         origin = outcome.marker_origin
@@ -688,15 +697,22 @@ class _KalmanEstimator:
         return int(self._fusion.counters["resets"])
 
     def dead_reckoning_until(self) -> float:
-        return self._fusion.dead_reckoning_until()
+        if self._reckoning is None:
+            self._reckoning = self._fusion.dead_reckoning_until()
+        return self._reckoning
 
     def orientation_gated(self) -> int:
         return int(self._fusion.counters["orientation_gated"])
 
     def snapshot(self) -> object:
-        return self._fusion.snapshot(), self.monitor.snapshot()
+        monitor = self.monitor
+        if self._monitor_state is None:
+            self._monitor_state = monitor.state_snapshot()
+        # the shared state is never changed: ConsistencyMonitor.restore copies it
+        return self._fusion.snapshot(), (self._monitor_state, monitor.shadow_snapshot())
 
     def restore(self, snapshot: object) -> None:
+        self._reckoning = self._monitor_state = None
         self._fusion.restore(snapshot[0])  # type: ignore[index]
         self.monitor.restore(snapshot[1])  # type: ignore[index]
 
