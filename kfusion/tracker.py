@@ -75,39 +75,41 @@ Whatever the arrival order within ``max_delay_s``, the result is bit-identical t
 everything in that order, and to ``kfusion track`` on the same recording
 (tests/test_batch_streaming.py, tests/test_tracker_late_arrival.py).
 
-Late arrival at bounded cost (the policy). Every sample is fused when it arrives, so that
+Late arrival at bounded cost (the policy). A frame is fused when it arrives, so that
 ``push_mocap`` returns the fix's outcome (accepted, gated, ...) and ``estimate(t)`` at a frame's
-time includes that frame: an estimate is never older than the data that has arrived. The tracker
-logs the fused events of the last ``max_delay_s`` and keeps state checkpoints where the next
-insertion will land (:meth:`Tracker._fuse_next`), and one after an IMU sample when the newest is
-``checkpoint_interval_s`` old.
-A sample behind the newest fused event undoes only what follows it:
+time includes that frame: an estimate is never older than the data that has arrived. An IMU
+sample in order is fused when it arrives too. The tracker logs the fused events of the last
+``max_delay_s`` and keeps state checkpoints where the next insertion will land
+(:meth:`Tracker._fuse_next`), and one after an IMU sample when the newest is
+``checkpoint_interval_s`` old. A sample behind the newest fused event undoes only what follows
+it:
 
-* an IMU sample behind mocap frames (frames first: same stamps with the mocap delivered first,
-  or an IMU latency): only frames can follow it (the IMU stream is in order), so the checkpoint
-  just before the first of them is restored and the sample is fused. The frames then *wait*
-  (pending) and are fused again once, when the IMU passes them, a frame follows, or the state is
-  read (``estimate``, ``health``, ``snapshot``). Further IMU samples behind them are fused
-  in order with no restore. Cost: one restore per frame, and each frame fused twice, however
-  many samples arrive behind it; no IMU sample is fused twice.
-* a frame behind IMU samples (the mocap late): the checkpoint before it is restored (while
-  frames come late, one is taken just before the first IMU sample past the time the next frame
-  is expected at; else the one just after the previous late frame, or an interval
-  checkpoint), the frame fused in its place (its outcome returned), a checkpoint taken after
-  it, and the IMU samples after it fused again. Cost: one restore, one update and lag x IMU
-  rate predictions for frames at a steady rate (at most (lag + the frame period or
-  ``checkpoint_interval_s``) x IMU rate).
+* an IMU sample behind fused frames (frames first: same stamps with the mocap delivered first,
+  or an IMU latency) is *deferred*: it waits (pending), with every IMU sample after it, until a
+  frame arrives, the state is read (``estimate``, ``health``, ``snapshot``, ...) or the waiting
+  samples span more than ``checkpoint_interval_s``. Then, once, the checkpoint just before it
+  is restored and the frames after it are fused again among the waiting samples. ``push_imu``
+  then costs its validation and an append (its outcome does not depend on the fusion), and a
+  reader at frame rate pays one restore and one extra update per frame, however many samples
+  arrived behind it; no IMU sample is fused twice.
+* a frame behind IMU samples (the mocap late): the deferred samples before it are fused; the
+  checkpoint before it is restored (while frames come late, one is taken just before the
+  first IMU sample past the time the next frame is expected at; else the one just after the
+  previous late frame, or an interval checkpoint), the frame fused in its place (its outcome
+  returned), a checkpoint taken after it, and the IMU samples after it fused again. Cost: one
+  restore, one update and lag x IMU rate predictions for frames at a steady rate (at most
+  (lag + the frame period or ``checkpoint_interval_s``) x IMU rate).
 * older than ``max_delay_s`` behind the newest sample: rejected ``too_late``.
 
 Anchors, and why not as they are. PX4 EKF2 fuses on a delayed horizon from an IMU buffer and an
 output predictor carries the state to now with the IMU alone; its output at now is a
 complementary correction, not the in-order posterior, so batch and stream would differ. A pure
-hold (a frame ahead of the IMU kept out of the state until the IMU passes it) cannot return the
-fix's outcome at push time and leaves ``estimate(t)`` at the frame's time without that frame,
-so the hold must end at every read: that is the pending frames above, entered only after an
-IMU sample really arrived behind a frame. This is optimistic execution with rollback and lazy
-re-execution (Jefferson's Time Warp): the common cases cost a restore and one extra update per
-frame rather than a replay of the buffer.
+hold of frames (a frame ahead of the IMU kept out of the state until the IMU passes it) cannot
+return the fix's outcome at push time and leaves ``estimate(t)`` at the frame's time without
+that frame. Here the frame is fused at once and the IMU samples behind it are held instead
+(their outcome is known at push time), and the hold ends at every read and every frame. This is
+optimistic execution with rollback and lazy re-execution (Jefferson's Time Warp): the common
+cases cost a restore and one extra update per frame rather than a replay of the buffer.
 """
 
 from __future__ import annotations
@@ -267,9 +269,8 @@ class Health:
         longest_gap_s: longest time without a fused fix, s (the current gap included).
         lost_transitions: times the status went from tracked or bridged to lost.
         state_resets: times a non-finite estimator state forced a restart.
-        replays: samples that arrived behind fused samples of the other stream and were
-            fused after restoring a checkpoint (a frame fused at its arrival and undone by a
-            late IMU sample, then read before the IMU passed it, may be undone again).
+        replays: checkpoint restores: a frame that arrived behind fused IMU samples, or IMU
+            samples deferred behind fused frames (one restore when they are fused).
         resets: calls to :meth:`Tracker.reset`.
         orientation_gated: mocap orientations rejected by the gate against the gyroscope (the
             fix's position was still used; Kalman only).
@@ -1183,8 +1184,8 @@ class Tracker:
         no "now", and an estimate at the newest sample's time would look current after the
         streams stopped: ValueError. A later ``t`` than the newest sample extrapolates with the
         last IMU sample held (for at most ``imu_dropout_s``; later a gap is ``lost``) and ages
-        ``time_since_fix``; the fused result is not changed (frames waiting after a late IMU
-        sample are fused first: :meth:`_flush`). NaN position before any fix.
+        ``time_since_fix``; the fused result is not changed (IMU samples waiting behind
+        frames are fused first: :meth:`_flush`). NaN position before any fix.
 
         Raises:
             ValueError: ``t`` missing without a clock, not a real number, or earlier than the
