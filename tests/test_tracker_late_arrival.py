@@ -226,8 +226,7 @@ def test_an_imu_that_stops_behind_a_frame_leaves_an_honest_status(recording, ref
     """An IMU sample arrives behind a frame (it waits, and the frame is fused again) and then
     the IMU stops while frames go on: every estimate equals the in-order run's (the waiting
     sample is fused when the state is read or the next frame arrives), tracked while the fixes
-    come,
-    and a gap after the IMU stopped is lost, not bridged."""
+    come, and a gap after the IMU stopped is lost, not bridged."""
     imu, mocap = recording.imu, recording.mocap
     stop = 1.2
     imu_rows = np.flatnonzero(imu.t <= stop)
