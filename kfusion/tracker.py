@@ -1285,6 +1285,7 @@ class Tracker:
         """Forget the state and the stream history, as if newly constructed; the health
         counters keep counting (``health.resets`` counts the calls)."""
         self._resets += 1
+        self._flush()  # the deferred samples count before the state is forgotten
         self._estimator = self._new_estimator()
         self._start_streams(keep_counters=True)
 

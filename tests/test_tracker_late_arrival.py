@@ -377,3 +377,26 @@ def test_a_read_fuses_the_frame_again_after_the_imu_sample_behind_it(recording, 
     assert len(tracker._pending) == 1 and tracker._rollback is not None  # deferred
     assert_same(tracker.estimate(mocap.t[frame]), after[position])
     assert not np.array_equal(early.position, after[position].position)
+
+
+def test_a_reset_counts_the_deferred_samples_first(recording):
+    """reset() while IMU samples wait behind a frame: the health counters (time tracked,
+    fixes, ...) are the in-order run's, as if every sample had been fused before the reset."""
+    imu, mocap = recording.imu, recording.mocap
+    events = fusion_order(recording)
+    frame = 30
+    sample = int(np.flatnonzero(imu.t == mocap.t[frame])[0])
+    position = events.index((MOCAP_STREAM, frame))
+    in_order, late = (Tracker.from_recording_info(recording.info) for _ in range(2))
+    for stream, index in events[:position + 1]:
+        push(in_order, recording, stream, index)
+    for stream, index in events[:position - 1]:
+        push(late, recording, stream, index)
+    push(late, recording, MOCAP_STREAM, frame)
+    push(late, recording, IMU_STREAM, sample)
+    assert late._pending  # deferred
+    in_order.reset()
+    late.reset()
+    expected, health = in_order.health.as_dict(), late.health.as_dict()
+    assert (expected.pop("replays"), health.pop("replays")) == (0, 1)
+    assert health == expected and health["time_tracked_s"] > 0.0
