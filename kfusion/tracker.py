@@ -695,7 +695,8 @@ class _KalmanEstimator:
 
     def resets(self) -> int:
         """Times the fusion forgot an overflowing state by itself (its ``resets`` counter)."""
-        return int(self._fusion.counters["resets"])
+        counter = getattr(self._fusion, "counter", None)  # the compiled engine's, no copies
+        return int(self._fusion.counters["resets"] if counter is None else counter("resets"))
 
     def dead_reckoning_until(self) -> float:
         if self._reckoning is None:
@@ -1437,8 +1438,7 @@ class Tracker:
             return None
         fused = self._book.key
         if self._rollback is None and fused is not None and key < fused:  # behind frames
-            checkpoints = self._checkpoints
-            if not checkpoints or not checkpoints[0].key < key:
+            if self._checkpoint_before(key) < 0:
                 return None
             self._rollback = key
         pending = self._pending
@@ -1453,10 +1453,7 @@ class Tracker:
         """Fuse a frame ``event`` (key ``key``) behind fused IMU samples: restore the newest
         checkpoint before it and fuse the logged events after that checkpoint again, with
         ``event`` in its place."""
-        checkpoints = self._checkpoints
-        index = len(checkpoints) - 1
-        while index >= 0 and not checkpoints[index].key < key:
-            index -= 1
+        index = self._checkpoint_before(key)
         if index < 0:
             return None
         later = self._rewind(index)
@@ -1464,10 +1461,18 @@ class Tracker:
         while split < len(later) and (later[split][0], later[split][1]) < key:
             self._fuse_next(later[split])
             split += 1
-        outcome = self._fuse_next(event, late_frame=event[1] == MOCAP_STREAM)
+        outcome = self._fuse_next(event, late_frame=True)
         for logged in later[split:]:
             self._fuse_next(logged)
         return outcome
+
+    def _checkpoint_before(self, key: tuple[float, int]) -> int:
+        """Index of the newest checkpoint before ``key``; -1 when there is none."""
+        checkpoints = self._checkpoints
+        index = len(checkpoints) - 1
+        while index >= 0 and not checkpoints[index].key < key:
+            index -= 1
+        return index
 
     def _rewind(self, index: int) -> list[tuple]:
         """Restore checkpoint ``index`` (dropping the newer ones) and take the logged events
@@ -1494,10 +1499,7 @@ class Tracker:
         rollback = self._rollback
         if rollback is not None and (before is None or rollback < before):
             self._rollback = None
-            checkpoints = self._checkpoints
-            index = len(checkpoints) - 1
-            while not checkpoints[index].key < rollback:  # one exists (_defer)
-                index -= 1
+            index = self._checkpoint_before(rollback)  # one exists (_defer)
             taken = []
             while pending and (before is None or _event_key(pending[0]) < before):
                 taken.append(pending.popleft())
