@@ -92,13 +92,18 @@ it:
   then costs its validation and an append (its outcome does not depend on the fusion), and a
   reader at frame rate pays one restore and one extra update per frame, however many samples
   arrived behind it; no IMU sample is fused twice.
-* a frame behind IMU samples (the mocap late): the deferred samples before it are fused; the
-  checkpoint before it is restored (while frames come late, one is taken just before the
-  first IMU sample past the time the next frame is expected at; else the one just after the
-  previous late frame, or an interval checkpoint), the frame fused in its place (its outcome
-  returned), a checkpoint taken after it, and the IMU samples after it fused again. Cost: one
-  restore, one update and lag x IMU rate predictions for frames at a steady rate (at most
-  (lag + the frame period or ``checkpoint_interval_s``) x IMU rate).
+* an IMU sample past the time the next frame is expected at (the newest frame's time plus
+  the last frame period), by at most ``checkpoint_interval_s``, is deferred the same way, with
+  no rollback: a frame that arrives late (the mocap typically lags the IMU by a few ms) then
+  lands in order, with no restore and no IMU sample fused twice. Past that wait the IMU
+  samples are fused as they arrive again (a mocap that stopped does not hold the IMU back).
+* a frame behind fused IMU samples (the mocap later than that wait): the deferred samples
+  before it are fused; the checkpoint before it is restored (while frames come late, one is
+  taken just before the first IMU sample past the time the next frame is expected at; else
+  the one just after the previous late frame, or an interval checkpoint), the frame fused in
+  its place (its outcome returned), a checkpoint taken after it, and the IMU samples after it
+  fused again. Cost: one restore, one update and lag x IMU rate predictions for frames at a
+  steady rate (at most (lag + the frame period or ``checkpoint_interval_s``) x IMU rate).
 * older than ``max_delay_s`` behind the newest sample: rejected ``too_late``.
 
 Anchors, and why not as they are. PX4 EKF2 fuses on a delayed horizon from an IMU buffer and an
@@ -270,7 +275,8 @@ class Health:
         lost_transitions: times the status went from tracked or bridged to lost.
         state_resets: times a non-finite estimator state forced a restart.
         replays: checkpoint restores: a frame that arrived behind fused IMU samples, or IMU
-            samples deferred behind fused frames (one restore when they are fused).
+            samples deferred behind fused frames (one restore when they are fused); a frame
+            that finds the IMU samples after it waiting costs none.
         resets: calls to :meth:`Tracker.reset`.
         orientation_gated: mocap orientations rejected by the gate against the gyroscope (the
             fix's position was still used; Kalman only).
@@ -926,6 +932,8 @@ class Tracker:
         self._imu_newest = -math.inf  # time of the newest IMU event that arrived to be fused
         self._mocap_newest = -math.inf  # the same for frames, and the last frame period, s
         self._frame_period = math.inf
+        # IMU samples up to this long past the next frame's expected time wait for it (s)
+        self._hold_s = options.checkpoint_interval_s if options.max_delay_s > 0 else -math.inf
         self._start_streams(keep_counters=False)
 
     # ---- construction helpers ---------------------------------------------------------------
@@ -1398,16 +1406,21 @@ class Tracker:
         """Fuse a validated event in time order; its outcome, or None if too late to insert.
 
         After the newest fused event (the common case): fused now. An IMU sample behind fused
-        frames, or after deferred samples, is deferred (:meth:`_defer`). A frame fuses the
+        frames, after deferred samples, or up to ``checkpoint_interval_s`` past the time the
+        next frame is expected at, is deferred (:meth:`_defer`). A frame fuses the
         deferred samples before it first (:meth:`_flush`), then is fused now, or inserted by
         :meth:`_insert` behind fused IMU samples (the late-arrival policy in the module
         docstring).
         """
         key = (event[0], event[1])
         if key[1] == IMU_STREAM:
-            if key[0] > self._imu_newest:
-                self._imu_newest = key[0]
-            if self._pending or (self._book.key is not None and key < self._book.key):
+            t = key[0]
+            if t > self._imu_newest:
+                self._imu_newest = t
+            fused = self._book.key
+            expected = self._mocap_newest + self._frame_period  # the next frame's time
+            if self._pending or (fused is not None and key < fused) \
+                    or expected < t <= expected + self._hold_s:
                 return self._defer(event, key)
         elif key[0] > self._mocap_newest:
             self._frame_period = key[0] - self._mocap_newest  # inf after the first frame
@@ -1426,9 +1439,10 @@ class Tracker:
         return self._insert(event, key)
 
     def _defer(self, event: tuple, key: tuple[float, int]) -> str | None:
-        """Defer an IMU sample that arrived behind fused frames or after deferred samples:
-        it waits (pending) until a frame arrives, the state is read (:meth:`_flush`), or the
-        deferred samples span more than ``checkpoint_interval_s``. Behind fused frames, the
+        """Defer an IMU sample that arrived behind fused frames, after deferred samples or
+        ahead of an expected frame: it waits (pending) until a frame arrives, the state is
+        read (:meth:`_flush`), or the deferred samples span more than
+        ``checkpoint_interval_s``. Behind fused frames, the
         checkpoint before it will be restored then (``_rollback``, its key), once for all
         the samples deferred. ``accepted``, or None when too late (older than ``max_delay_s``
         behind the newest event, or no checkpoint before it)."""

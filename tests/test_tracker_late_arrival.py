@@ -207,15 +207,36 @@ def test_frames_ahead_of_the_imu_cost_one_restore_and_one_refusion(recording, ea
     assert counter.updates == len(mocap) + frames_undone
 
 
-def test_a_late_frame_replays_only_the_imu_samples_after_the_checkpoint_before_it(recording):
-    """A frame 7 ms late (IMU at 1 kHz): the checkpoint taken just before the first IMU
-    sample past the frame's expected time is restored and only the samples of its lag are
-    fused again, at most 7 per frame (never the whole buffer); no frame is fused twice."""
+def test_a_late_frame_finds_the_imu_samples_after_it_waiting(recording):
+    """Frames 7 ms late (IMU at 1 kHz): the IMU samples past the time the next frame is
+    expected wait for it (up to ``checkpoint_interval_s``, 20 ms), so the frame lands in
+    order: no restore (but for the first frames, before the frame period is known), no IMU
+    sample fused twice, no frame fused twice."""
     imu, mocap = recording.imu, recording.mocap
     order = arrival_order(recording, np.zeros(len(imu)), np.full(len(mocap), 0.007))
     tracker, counter = counting_tracker(recording)
     for stream, index in order:
         push(tracker, recording, stream, index)
+    tracker.estimate(tracker.newest_time)
+    assert tracker.health.replays <= 2
+    assert counter.predicts - len(imu) <= 2 * (7 + 10)  # each: its lag and a frame period
+    assert counter.updates == len(mocap)
+
+
+def test_a_frame_later_than_the_wait_replays_only_the_samples_of_its_lag(recording):
+    """Frames 7 ms late with samples waiting only 3 ms (``checkpoint_interval_s``): the
+    checkpoint taken just before the first IMU sample past the frame's expected time is
+    restored and only the samples of its lag are fused again, at most 7 per frame (never the
+    whole buffer); no frame is fused twice."""
+    imu, mocap = recording.imu, recording.mocap
+    order = arrival_order(recording, np.zeros(len(imu)), np.full(len(mocap), 0.007))
+    tracker = Tracker.from_recording_info(recording.info,
+                                          options={"checkpoint_interval_s": 0.003})
+    counter = CountingEstimator(tracker._estimator)
+    tracker._estimator = counter
+    for stream, index in order:
+        push(tracker, recording, stream, index)
+    tracker.estimate(tracker.newest_time)
     replayed = counter.predicts - len(imu)
     assert tracker.health.replays == len(mocap)
     assert replayed <= len(mocap) * 7
