@@ -611,6 +611,14 @@ class ConsistencyMonitor:
         if self._start is not None:
             self._shadow.predict(t, accelerometer, gyroscope)
 
+    def imu_valid(self, t: float, a0: float, a1: float, a2: float, g0: float, g1: float,
+                  g2: float) -> None:
+        """:meth:`imu` of a sample its caller has checked, for a compiled shadow
+        (:meth:`kfusion.kalman.compiled_fusion.CompiledFusion.predict_valid`: t a finite float
+        after the previous sample's stamp, a0..a2 m/s^2 and g0..g2 rad/s finite floats)."""
+        if self._start is not None:
+            self._shadow.predict_valid(t, a0, a1, a2, g0, g1, g2)  # type: ignore[attr-defined]
+
     @property
     def has_gated_fix(self) -> bool:
         """True when a fix was gated since the last fused one (then the caller passes the
@@ -781,10 +789,20 @@ class ConsistencyMonitor:
 
     def snapshot(self) -> object:
         """A copy of the monitor's state; :meth:`restore` continues from it exactly."""
-        state = {key: value for key, value in vars(self).items()
-                 if key not in ("_shadow", "params", "_gravity")}
-        shadow = self._shadow.snapshot() if self._start is not None else None
-        return _copy_state(state), shadow
+        return self.state_snapshot(), self.shadow_snapshot()
+
+    def state_snapshot(self) -> object:
+        """The part of :meth:`snapshot` besides the shadow filter: it changes only in
+        :meth:`mocap` and :meth:`restore` (and a cached scale at reads), so a caller may keep
+        one and pair it with later :meth:`shadow_snapshot` s until the next of those calls."""
+        state = vars(self).copy()
+        for key in _NOT_STATE:
+            del state[key]
+        return _copy_state(state)
+
+    def shadow_snapshot(self) -> object:
+        """The shadow filter's part of :meth:`snapshot` (None outside a shadow gap)."""
+        return self._shadow.snapshot() if self._start is not None else None
 
     def restore(self, snapshot: object) -> None:
         """Continue from a :meth:`snapshot` of a monitor with the same configuration."""
@@ -811,6 +829,10 @@ class ConsistencyMonitor:
                              clock_offset_std_s=math.nan if clock is None else clock[1])
 
 
+_NOT_STATE: Final = ("_shadow", "params", "_gravity")
+"""ConsistencyMonitor attributes that are configuration, not state (left out of snapshots)."""
+
+
 def _copy_state(state: dict[str, object]) -> dict[str, object]:
     """A copy of the monitor's state dict that shares nothing mutable with it: deques and lists
     are copied; floats, tuples, the arrays the monitor stores (each built new and never changed
@@ -818,11 +840,10 @@ def _copy_state(state: dict[str, object]) -> dict[str, object]:
     place: :meth:`ConsistencyMonitor._close`) are shared. It stands for ``copy.deepcopy``,
     which took about 0.7 ms per snapshot (the Tracker takes one at mocap rate); copying the
     scales' rows too took most of the 10-20 µs a snapshot still cost."""
-    copied: dict[str, object] = {}
+    copied = state.copy()
     for key, value in state.items():
-        if isinstance(value, deque):
-            value = deque(value, maxlen=value.maxlen)
-        elif isinstance(value, list):
-            value = list(value)
-        copied[key] = value
+        if isinstance(value, list):
+            copied[key] = list(value)
+        elif isinstance(value, deque):
+            copied[key] = deque(value, maxlen=value.maxlen)
     return copied

@@ -75,39 +75,46 @@ Whatever the arrival order within ``max_delay_s``, the result is bit-identical t
 everything in that order, and to ``kfusion track`` on the same recording
 (tests/test_batch_streaming.py, tests/test_tracker_late_arrival.py).
 
-Late arrival at bounded cost (the policy). Every sample is fused when it arrives, so that
+Late arrival at bounded cost (the policy). A frame is fused when it arrives, so that
 ``push_mocap`` returns the fix's outcome (accepted, gated, ...) and ``estimate(t)`` at a frame's
-time includes that frame: an estimate is never older than the data that has arrived. The tracker
-logs the fused events of the last ``max_delay_s`` and keeps state checkpoints where the next
-insertion will land (:meth:`Tracker._fuse_next`), and one after an IMU sample when the newest is
-``checkpoint_interval_s`` old.
-A sample behind the newest fused event undoes only what follows it:
+time includes that frame: an estimate is never older than the data that has arrived. An IMU
+sample in order is fused when it arrives too. The tracker logs the fused events of the last
+``max_delay_s`` and keeps state checkpoints where the next insertion will land
+(:meth:`Tracker._fuse_next`), and one after an IMU sample when the newest is
+``checkpoint_interval_s`` old. A sample behind the newest fused event undoes only what follows
+it:
 
-* an IMU sample behind mocap frames (frames first: same stamps with the mocap delivered first,
-  or an IMU latency): only frames can follow it (the IMU stream is in order), so the checkpoint
-  just before the first of them is restored and the sample is fused. The frames then *wait*
-  (pending) and are fused again once, when the IMU passes them, a frame follows, or the state is
-  read (``estimate``, ``health``, ``snapshot``). Further IMU samples behind them are fused
-  in order with no restore. Cost: one restore per frame, and each frame fused twice, however
-  many samples arrive behind it; no IMU sample is fused twice.
-* a frame behind IMU samples (the mocap late): the checkpoint before it is restored (while
-  frames come late, one is taken just before the first IMU sample past the time the next frame
-  is expected at; else the one just after the previous late frame, or an interval
-  checkpoint), the frame fused in its place (its outcome returned), a checkpoint taken after
-  it, and the IMU samples after it fused again. Cost: one restore, one update and lag x IMU
-  rate predictions for frames at a steady rate (at most (lag + the frame period or
-  ``checkpoint_interval_s``) x IMU rate).
+* an IMU sample behind fused frames (frames first: same stamps with the mocap delivered first,
+  or an IMU latency) is *deferred*: it waits (pending), with every IMU sample after it, until a
+  frame arrives, the state is read (``estimate``, ``health``, ``snapshot``, ...) or the waiting
+  samples span more than ``checkpoint_interval_s``. Then, once, the checkpoint just before it
+  is restored and the frames after it are fused again among the waiting samples. ``push_imu``
+  then costs its validation and an append (its outcome does not depend on the fusion), and a
+  reader at frame rate pays one restore and one extra update per frame, however many samples
+  arrived behind it; no IMU sample is fused twice.
+* an IMU sample past the time the next frame is expected at (the newest frame's time plus
+  the last frame period), by at most ``checkpoint_interval_s``, is deferred the same way, with
+  no rollback: a frame that arrives late (the mocap typically lags the IMU by a few ms) then
+  lands in order, with no restore and no IMU sample fused twice. Past that wait the IMU
+  samples are fused as they arrive again (a mocap that stopped does not hold the IMU back).
+* a frame behind fused IMU samples (the mocap later than that wait): the deferred samples
+  before it are fused; the checkpoint before it is restored (while frames come late, one is
+  taken just before the first IMU sample past the time the next frame is expected at; else
+  the one just after the previous late frame, or an interval checkpoint), the frame fused in
+  its place (its outcome returned), a checkpoint taken after it, and the IMU samples after it
+  fused again. Cost: one restore, one update and lag x IMU rate predictions for frames at a
+  steady rate (at most (lag + the frame period or ``checkpoint_interval_s``) x IMU rate).
 * older than ``max_delay_s`` behind the newest sample: rejected ``too_late``.
 
 Anchors, and why not as they are. PX4 EKF2 fuses on a delayed horizon from an IMU buffer and an
 output predictor carries the state to now with the IMU alone; its output at now is a
 complementary correction, not the in-order posterior, so batch and stream would differ. A pure
-hold (a frame ahead of the IMU kept out of the state until the IMU passes it) cannot return the
-fix's outcome at push time and leaves ``estimate(t)`` at the frame's time without that frame,
-so the hold must end at every read: that is the pending frames above, entered only after an
-IMU sample really arrived behind a frame. This is optimistic execution with rollback and lazy
-re-execution (Jefferson's Time Warp): the common cases cost a restore and one extra update per
-frame rather than a replay of the buffer.
+hold of frames (a frame ahead of the IMU kept out of the state until the IMU passes it) cannot
+return the fix's outcome at push time and leaves ``estimate(t)`` at the frame's time without
+that frame. Here the frame is fused at once and the IMU samples behind it are held instead
+(their outcome is known at push time), and the hold ends at every read and every frame. This is
+optimistic execution with rollback and lazy re-execution (Jefferson's Time Warp): the common
+cases cost a restore and one extra update per frame rather than a replay of the buffer.
 """
 
 from __future__ import annotations
@@ -267,9 +274,9 @@ class Health:
         longest_gap_s: longest time without a fused fix, s (the current gap included).
         lost_transitions: times the status went from tracked or bridged to lost.
         state_resets: times a non-finite estimator state forced a restart.
-        replays: samples that arrived behind fused samples of the other stream and were
-            fused after restoring a checkpoint (a frame fused at its arrival and undone by a
-            late IMU sample, then read before the IMU passed it, may be undone again).
+        replays: checkpoint restores: a frame that arrived behind fused IMU samples, or IMU
+            samples deferred behind fused frames (one restore when they are fused); a frame
+            that finds the IMU samples after it waiting costs none.
         resets: calls to :meth:`Tracker.reset`.
         orientation_gated: mocap orientations rejected by the gate against the gyroscope (the
             fix's position was still used; Kalman only).
@@ -626,18 +633,26 @@ class _KalmanEstimator:
         self.imu_dropout_s = float(params.imu_dropout_s)
         self.accelerometer_range = float(params.accelerometer_range)
         self.imu_latency_s = float(params.imu_latency_s)
+        # the monitor's state besides its shadow (ConsistencyMonitor.state_snapshot) changes
+        # only at frames and restores: one copy serves the checkpoints in between
+        self._monitor_state: object | None = None
+        self._reckoning: float | None = None  # dead_reckoning_until() until the next event
 
     def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
         """A sample the tracker validated: t a finite float after the previous sample's stamp,
         accelerometer (3,) finite floats, gyroscope 3 finite floats."""
+        self._reckoning = None
         if self._predict_valid is not None:
             a0, a1, a2 = accelerometer.tolist()
-            self._predict_valid(t, a0, a1, a2, *gyroscope)
-        else:
-            self._fusion.predict(t, accelerometer, gyroscope)
+            g0, g1, g2 = gyroscope
+            self._predict_valid(t, a0, a1, a2, g0, g1, g2)
+            self.monitor.imu_valid(t, a0, a1, a2, g0, g1, g2)  # its shadow is compiled too
+            return
+        self._fusion.predict(t, accelerometer, gyroscope)
         self.monitor.imu(t, accelerometer, gyroscope)
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str:
+        self._reckoning = self._monitor_state = None
         prior = self._fusion.estimate(t) if self.monitor.has_gated_fix else None
         outcome = self._fusion.update(t, position, quaternion)
         self.monitor.mocap(t, position, outcome, self._fusion, prior)
@@ -647,6 +662,7 @@ class _KalmanEstimator:
                        ) -> tuple[str, int, int]:
         """Fuse a marker frame (:meth:`KalmanFusion.update_markers`); (reason, markers used,
         markers rejected). The monitor sees the markers' Kabsch origin as the frame's fix."""
+        self._reckoning = self._monitor_state = None
         prior = self._fusion.estimate(t) if self.monitor.has_gated_fix else None
         outcome = self._fusion.update_markers(t, observed, body)
         origin = outcome.marker_origin
@@ -685,18 +701,26 @@ class _KalmanEstimator:
 
     def resets(self) -> int:
         """Times the fusion forgot an overflowing state by itself (its ``resets`` counter)."""
-        return int(self._fusion.counters["resets"])
+        counter = getattr(self._fusion, "counter", None)  # the compiled engine's, no copies
+        return int(self._fusion.counters["resets"] if counter is None else counter("resets"))
 
     def dead_reckoning_until(self) -> float:
-        return self._fusion.dead_reckoning_until()
+        if self._reckoning is None:
+            self._reckoning = self._fusion.dead_reckoning_until()
+        return self._reckoning
 
     def orientation_gated(self) -> int:
         return int(self._fusion.counters["orientation_gated"])
 
     def snapshot(self) -> object:
-        return self._fusion.snapshot(), self.monitor.snapshot()
+        monitor = self.monitor
+        if self._monitor_state is None:
+            self._monitor_state = monitor.state_snapshot()
+        # the shared state is never changed: ConsistencyMonitor.restore copies it
+        return self._fusion.snapshot(), (self._monitor_state, monitor.shadow_snapshot())
 
     def restore(self, snapshot: object) -> None:
+        self._reckoning = self._monitor_state = None
         self._fusion.restore(snapshot[0])  # type: ignore[index]
         self.monitor.restore(snapshot[1])  # type: ignore[index]
 
@@ -902,11 +926,14 @@ class Tracker:
         self._replays = 0
         self._log: deque[tuple] = deque()
         self._checkpoints: deque[_Checkpoint] = deque()
-        self._pending: deque[tuple] = deque()
+        self._pending: deque[tuple] = deque()  # deferred IMU samples, in time order
+        self._rollback: tuple[float, int] | None = None  # key of the first behind fused frames
         self._newest: tuple[float, int] | None = None
         self._imu_newest = -math.inf  # time of the newest IMU event that arrived to be fused
         self._mocap_newest = -math.inf  # the same for frames, and the last frame period, s
         self._frame_period = math.inf
+        # IMU samples up to this long past the next frame's expected time wait for it (s)
+        self._hold_s = options.checkpoint_interval_s if options.max_delay_s > 0 else -math.inf
         self._start_streams(keep_counters=False)
 
     # ---- construction helpers ---------------------------------------------------------------
@@ -1166,8 +1193,8 @@ class Tracker:
         no "now", and an estimate at the newest sample's time would look current after the
         streams stopped: ValueError. A later ``t`` than the newest sample extrapolates with the
         last IMU sample held (for at most ``imu_dropout_s``; later a gap is ``lost``) and ages
-        ``time_since_fix``; the fused result is not changed (frames waiting after a late IMU
-        sample are fused first: :meth:`_flush`). NaN position before any fix.
+        ``time_since_fix``; the fused result is not changed (IMU samples waiting behind
+        frames are fused first: :meth:`_flush`). NaN position before any fix.
 
         Raises:
             ValueError: ``t`` missing without a clock, not a real number, or earlier than the
@@ -1267,6 +1294,7 @@ class Tracker:
         """Forget the state and the stream history, as if newly constructed; the health
         counters keep counting (``health.resets`` counts the calls)."""
         self._resets += 1
+        self._flush()  # the deferred samples count before the state is forgotten
         self._estimator = self._new_estimator()
         self._start_streams(keep_counters=True)
 
@@ -1308,7 +1336,7 @@ class Tracker:
         self._log, self._checkpoints = state["log"], state["checkpoints"]
         self._resets, self._replays = state["resets"], state["replays"]
         self._watch, self._guard = state["watch"], state["guard"]
-        self._newest, self._pending = state["newest"], deque()
+        self._newest, self._pending, self._rollback = state["newest"], deque(), None
         self._imu_newest, self._mocap_newest, self._frame_period = state["horizons"]
 
     @_locked
@@ -1340,6 +1368,7 @@ class Tracker:
         self._log = deque()
         self._checkpoints = deque()
         self._pending = deque()
+        self._rollback = None
         self._newest = None
         self._imu_newest = self._mocap_newest = -math.inf
         self._frame_period = math.inf
@@ -1355,6 +1384,7 @@ class Tracker:
         seen = _STREAMS_SEEN[imu != -math.inf, mocap != -math.inf]
         verdict = self._guard.check(t, stream, imu if imu > mocap else mocap, seen)
         if verdict == REBASE:
+            self._flush()  # the deferred samples count before the restart
             self._estimator = self._new_estimator()
             self._start_streams(keep_counters=True)
         return verdict == IMPLAUSIBLE
@@ -1375,44 +1405,93 @@ class Tracker:
     def _fuse(self, event: tuple) -> str | None:
         """Fuse a validated event in time order; its outcome, or None if too late to insert.
 
-        After the newest fused event (the common case): fused now, after the pending frames
-        that come before it. Behind it: inserted by :meth:`_insert` (the late-arrival policy
-        in the module docstring).
+        After the newest fused event (the common case): fused now. An IMU sample behind fused
+        frames, after deferred samples, or up to ``checkpoint_interval_s`` past the time the
+        next frame is expected at, is deferred (:meth:`_defer`). A frame fuses the
+        deferred samples before it first (:meth:`_flush`), then is fused now, or inserted by
+        :meth:`_insert` behind fused IMU samples (the late-arrival policy in the module
+        docstring).
         """
         key = (event[0], event[1])
         if key[1] == IMU_STREAM:
-            if key[0] > self._imu_newest:
-                self._imu_newest = key[0]
+            t = key[0]
+            if t > self._imu_newest:
+                self._imu_newest = t
+            fused = self._book.key
+            expected = self._mocap_newest + self._frame_period  # the next frame's time
+            if self._pending or (fused is not None and key < fused) \
+                    or expected < t <= expected + self._hold_s:
+                return self._defer(event, key)
         elif key[0] > self._mocap_newest:
             self._frame_period = key[0] - self._mocap_newest  # inf after the first frame
             self._mocap_newest = key[0]
+        if self._pending:
+            self._flush(key)
         newest = self._newest
         if newest is None or key > newest:
             self._newest = key
-            if self._pending:
-                self._flush()
             return self._fuse_next(event)
         if event[0] < newest[0] - self.options.max_delay_s:
             return None
         fused = self._book.key
-        if fused is None or key > fused:  # behind pending frames only: no state to undo
-            self._flush(key)
+        if fused is None or key > fused:  # behind deferred samples only: no state to undo
             return self._fuse_next(event)
         return self._insert(event, key)
 
+    def _defer(self, event: tuple, key: tuple[float, int]) -> str | None:
+        """Defer an IMU sample that arrived behind fused frames, after deferred samples or
+        ahead of an expected frame: it waits (pending) until a frame arrives, the state is
+        read (:meth:`_flush`), or the deferred samples span more than
+        ``checkpoint_interval_s``. Behind fused frames, the
+        checkpoint before it will be restored then (``_rollback``, its key), once for all
+        the samples deferred. ``accepted``, or None when too late (older than ``max_delay_s``
+        behind the newest event, or no checkpoint before it)."""
+        newest = self._newest
+        assert newest is not None  # a fused or pending event came before
+        if event[0] < newest[0] - self.options.max_delay_s:
+            return None
+        fused = self._book.key
+        if self._rollback is None and fused is not None and key < fused:  # behind frames
+            if self._checkpoint_before(key) < 0:
+                return None
+            self._rollback = key
+        pending = self._pending
+        if key > newest:
+            self._newest = key
+        pending.append(event)  # the IMU stream is in order: pending stays sorted
+        if event[0] - pending[0][0] > self.options.checkpoint_interval_s:
+            self._flush()
+        return ACCEPTED
+
     def _insert(self, event: tuple, key: tuple[float, int]) -> str | None:
-        """Fuse ``event`` (key ``key``) behind fused events: restore the newest checkpoint
-        before it and fuse the logged events after that checkpoint again, with ``event`` in
-        its place. The logged events after a late IMU sample are all mocap frames (the IMU
-        stream is in order): they wait as pending frames until the IMU passes them, a frame
-        follows or the state is read (:meth:`_flush`). After a late frame, everything is fused
-        again at once (its IMU samples come after it)."""
+        """Fuse a frame ``event`` (key ``key``) behind fused IMU samples: restore the newest
+        checkpoint before it and fuse the logged events after that checkpoint again, with
+        ``event`` in its place."""
+        index = self._checkpoint_before(key)
+        if index < 0:
+            return None
+        later = self._rewind(index)
+        split = 0
+        while split < len(later) and (later[split][0], later[split][1]) < key:
+            self._fuse_next(later[split])
+            split += 1
+        outcome = self._fuse_next(event, late_frame=True)
+        for logged in later[split:]:
+            self._fuse_next(logged)
+        return outcome
+
+    def _checkpoint_before(self, key: tuple[float, int]) -> int:
+        """Index of the newest checkpoint before ``key``; -1 when there is none."""
         checkpoints = self._checkpoints
         index = len(checkpoints) - 1
         while index >= 0 and not checkpoints[index].key < key:
             index -= 1
-        if index < 0:
-            return None
+        return index
+
+    def _rewind(self, index: int) -> list[tuple]:
+        """Restore checkpoint ``index`` (dropping the newer ones) and take the logged events
+        after it off the log: they are returned, in time order, to be fused again."""
+        checkpoints = self._checkpoints
         checkpoint = checkpoints[index]
         while len(checkpoints) > index + 1:
             checkpoints.pop()
@@ -1424,22 +1503,24 @@ class Tracker:
             later.append(log.pop())
         later.reverse()
         self._replays += 1
-        split = 0
-        while split < len(later) and (later[split][0], later[split][1]) < key:
-            self._fuse_next(later[split])
-            split += 1
-        outcome = self._fuse_next(event, late_frame=event[1] == MOCAP_STREAM)
-        if event[1] == IMU_STREAM:
-            self._pending.extendleft(reversed(later[split:]))  # frames, before pending ones
-        else:
-            for logged in later[split:]:
-                self._fuse_next(logged)
-        return outcome
+        return later
 
     def _flush(self, before: tuple[float, int] | None = None) -> None:
-        """Fuse the pending frames (those with a key before ``before``; None: all)."""
+        """Fuse the deferred IMU samples (those with a key before ``before``; None: all),
+        first restoring the checkpoint before the oldest when it arrived behind fused frames
+        and fusing the frames again in their place."""
         pending = self._pending
-        while pending and (before is None or (pending[0][0], pending[0][1]) < before):
+        rollback = self._rollback
+        if rollback is not None and (before is None or rollback < before):
+            self._rollback = None
+            index = self._checkpoint_before(rollback)  # one exists (_defer)
+            taken = []
+            while pending and (before is None or _event_key(pending[0]) < before):
+                taken.append(pending.popleft())
+            for event in sorted(self._rewind(index) + taken, key=_event_key):
+                self._fuse_next(event)
+            return
+        while pending and (before is None or _event_key(pending[0]) < before):
             self._fuse_next(pending.popleft())
 
     def _fuse_next(self, event: tuple, *, late_frame: bool = False) -> str:
@@ -1640,6 +1721,11 @@ def _parameters(method: str, params: Any, profile: ImuProfile) -> Any:
         return BaselineParameters.from_mapping(params)
     raise ValueError(f"Tracker: params: expected BaselineParameters or a mapping for method "
                      f"'baseline', got {type(params).__name__}")
+
+
+def _event_key(event: tuple) -> tuple[float, int]:
+    """An event's (t, stream): its place in the fusion order."""
+    return event[0], event[1]
 
 
 def _finite_reading(reading: _Reading, has_covariance: bool) -> bool:

@@ -292,7 +292,10 @@ def test_push_markers_equals_kfusion_track_with_markers_bit_for_bit(tmp_path, ca
     events = sorted([(t, 0, i) for i, t in enumerate(recording.imu.t)]
                     + [(t, 1, j) for j, t in enumerate(recording.mocap.t)])
     in_order = Tracker.from_recording_info(recording.info, params=params_used)
-    late = Tracker.from_recording_info(recording.info, params=params_used)
+    # IMU samples wait for an expected frame at most 1 ms (checkpoint_interval_s): the frames
+    # here, one IMU sample late, are inserted behind fused samples from checkpoints
+    late = Tracker.from_recording_info(recording.info, params=params_used,
+                                       options={"checkpoint_interval_s": 0.001})
     m = len(recording.mocap)
     position, std, status = np.full((m, 3), np.nan), np.full((m, 3), np.nan), []
     held = None  # in `late`, each marker frame arrives after the next IMU sample

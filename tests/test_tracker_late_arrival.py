@@ -1,7 +1,8 @@
 """Late arrival (issue 11 §3): whatever order the two streams arrive in (within ``max_delay_s``),
 the Tracker gives the in-order result bit for bit, and a late sample costs a bounded amount of
-work: an IMU sample behind mocap frames restores the checkpoint just before them and is fused
-once, and each such frame is fused again once, however many IMU samples arrive behind it.
+work: IMU samples behind mocap frames wait until a frame arrives or the state is read, then
+the checkpoint just before them is restored once, each sample is fused once, and each such frame
+is fused again once, however many IMU samples arrive behind it.
 
 The reference is the same Tracker fed the fusion order (:func:`kfusion.kalman.events.event_key`).
 A run in another order is compared with it whenever the samples that have arrived are exactly
@@ -98,16 +99,21 @@ def reference(recording):
     return in_order_run(recording)
 
 
-def compare_run(recording, reference, order: Order, tracker: Tracker | None = None) -> int:
+def compare_run(recording, reference, order: Order, tracker: Tracker | None = None,
+                reads: np.ndarray | None = None) -> int:
     """Push ``order``; compare with the in-order run at every complete prefix; the number of
-    comparisons. The final health counters must equal the in-order run's (replays aside)."""
+    comparisons. The final health counters must equal the in-order run's (replays aside).
+    ``reads`` (bool per push): also read the estimate at the newest time after that push
+    (a read fuses deferred samples, whether or not the prefix is complete)."""
     in_order, after = reference
     rank = {event: position for position, event in enumerate(fusion_order(recording))}
     tracker = tracker or Tracker.from_recording_info(recording.info)
     arrived = np.zeros(len(rank), dtype=bool)
     complete, highest, compared = 0, -1, 0
-    for stream, index in order:
+    for number, (stream, index) in enumerate(order):
         push(tracker, recording, stream, index)
+        if reads is not None and reads[number]:
+            tracker.estimate(tracker.newest_time)
         position = rank[(stream, index)]
         arrived[position] = True
         highest = max(highest, position)
@@ -201,15 +207,36 @@ def test_frames_ahead_of_the_imu_cost_one_restore_and_one_refusion(recording, ea
     assert counter.updates == len(mocap) + frames_undone
 
 
-def test_a_late_frame_replays_only_the_imu_samples_after_the_checkpoint_before_it(recording):
-    """A frame 7 ms late (IMU at 1 kHz): the checkpoint taken just before the first IMU
-    sample past the frame's expected time is restored and only the samples of its lag are
-    fused again, at most 7 per frame (never the whole buffer); no frame is fused twice."""
+def test_a_late_frame_finds_the_imu_samples_after_it_waiting(recording):
+    """Frames 7 ms late (IMU at 1 kHz): the IMU samples past the time the next frame is
+    expected wait for it (up to ``checkpoint_interval_s``, 20 ms), so the frame lands in
+    order: no restore (but for the first frames, before the frame period is known), no IMU
+    sample fused twice, no frame fused twice."""
     imu, mocap = recording.imu, recording.mocap
     order = arrival_order(recording, np.zeros(len(imu)), np.full(len(mocap), 0.007))
     tracker, counter = counting_tracker(recording)
     for stream, index in order:
         push(tracker, recording, stream, index)
+    tracker.estimate(tracker.newest_time)
+    assert tracker.health.replays <= 2
+    assert counter.predicts - len(imu) <= 2 * (7 + 10)  # each: its lag and a frame period
+    assert counter.updates == len(mocap)
+
+
+def test_a_frame_later_than_the_wait_replays_only_the_samples_of_its_lag(recording):
+    """Frames 7 ms late with samples waiting only 3 ms (``checkpoint_interval_s``): the
+    checkpoint taken just before the first IMU sample past the frame's expected time is
+    restored and only the samples of its lag are fused again, at most 7 per frame (never the
+    whole buffer); no frame is fused twice."""
+    imu, mocap = recording.imu, recording.mocap
+    order = arrival_order(recording, np.zeros(len(imu)), np.full(len(mocap), 0.007))
+    tracker = Tracker.from_recording_info(recording.info,
+                                          options={"checkpoint_interval_s": 0.003})
+    counter = CountingEstimator(tracker._estimator)
+    tracker._estimator = counter
+    for stream, index in order:
+        push(tracker, recording, stream, index)
+    tracker.estimate(tracker.newest_time)
     replayed = counter.predicts - len(imu)
     assert tracker.health.replays == len(mocap)
     assert replayed <= len(mocap) * 7
@@ -217,10 +244,10 @@ def test_a_late_frame_replays_only_the_imu_samples_after_the_checkpoint_before_i
 
 
 def test_an_imu_that_stops_behind_a_frame_leaves_an_honest_status(recording, reference):
-    """An IMU sample arrives behind a frame (the frame waits to be fused again) and then the IMU
-    stops while frames go on: every estimate equals the in-order run's (the waiting frame is
-    fused when the state is read or the next frame arrives), tracked while the fixes come,
-    and a gap after the IMU stopped is lost, not bridged."""
+    """An IMU sample arrives behind a frame (it waits, and the frame is fused again) and then
+    the IMU stops while frames go on: every estimate equals the in-order run's (the waiting
+    sample is fused when the state is read or the next frame arrives), tracked while the fixes
+    come, and a gap after the IMU stopped is lost, not bridged."""
     imu, mocap = recording.imu, recording.mocap
     stop = 1.2
     imu_rows = np.flatnonzero(imu.t <= stop)
@@ -239,7 +266,7 @@ def test_an_imu_that_stops_behind_a_frame_leaves_an_honest_status(recording, ref
         push(late, recording, stream, index)
         if (stream, index) == (MOCAP_STREAM, frame_at_stop):
             push(late, recording, IMU_STREAM, int(imu_rows[-1]))
-            assert len(late._pending) == 1  # the frame waits to be fused again
+            assert len(late._pending) == 1  # the sample waits; the frame is fused again
     for now in (stop + 0.3, stop + 0.31, stop + 0.6, stop + 2.0):
         expected, actual = in_order.estimate(now), late.estimate(now)
         assert_same(actual, expected)
@@ -271,18 +298,24 @@ def test_the_frame_pending_after_a_late_sample_counts_in_health_and_snapshots(re
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(imu_lag=st.floats(0.0, 0.03), mocap_lag=st.floats(0.0, 0.03),
-       jitter=st.floats(0.0, 0.04), seed=st.integers(0, 2**16))
-def test_any_arrival_order_within_max_delay_gives_the_in_order_result(short_recording,
-                                                                       short_reference,
-                                                                       imu_lag, mocap_lag,
-                                                                       jitter, seed):
+       jitter=st.floats(0.0, 0.04), seed=st.integers(0, 2**16),
+       read_probability=st.sampled_from([0.0, 0.1, 1.0]),
+       checkpoint_interval=st.sampled_from([0.02, 0.002]))
+def test_any_arrival_order_within_max_delay_gives_the_in_order_result(
+        short_recording, short_reference, imu_lag, mocap_lag, jitter, seed, read_probability,
+        checkpoint_interval):
     """Hypothesis: constant lags of either stream plus random jitter (all within the default
-    ``max_delay_s`` of 0.1 s): bit for bit the in-order result at every complete prefix."""
+    ``max_delay_s`` of 0.1 s), reads at random moments (each fuses the deferred samples) and
+    checkpoint intervals of 20 or 2 ms (the span after which deferred samples are fused even
+    without a read): bit for bit the in-order result at every complete prefix."""
     rng = np.random.default_rng(seed)
     imu, mocap = short_recording.imu, short_recording.mocap
     order = arrival_order(short_recording, imu_lag + rng.uniform(0.0, jitter, len(imu)),
                           mocap_lag + rng.uniform(0.0, jitter, len(mocap)))
-    compare_run(short_recording, short_reference, order)
+    tracker = Tracker.from_recording_info(short_recording.info,
+                                          options={"checkpoint_interval_s": checkpoint_interval})
+    compare_run(short_recording, short_reference, order, tracker,
+                reads=rng.uniform(size=len(order)) < read_probability)
 
 
 @pytest.fixture(scope="module")
@@ -296,3 +329,95 @@ def short_recording():
 @pytest.fixture(scope="module")
 def short_reference(short_recording):
     return in_order_run(short_recording)
+
+
+@pytest.mark.parametrize("arrival", ["mocap first", "4.5 ms early", "jitter"])
+def test_deferred_imu_samples_give_the_in_order_result_with_a_reader_at_every_frame(
+        recording, reference, arrival):
+    """IMU samples arriving behind frames wait (deferred) and the frames are fused again
+    once the samples before them are in: with a reader after every frame (safety software),
+    bit for bit the in-order estimates at every complete prefix and the same health; the
+    samples really were deferred; each read right after a fused frame includes that frame
+    (``time_since_fix`` 0)."""
+    imu, mocap = recording.imu, recording.mocap
+    rng = np.random.default_rng(11)
+    if arrival == "jitter":
+        order = arrival_order(recording, rng.uniform(0.0, 0.01, len(imu)),
+                              rng.uniform(0.0, 0.01, len(mocap)))
+    else:
+        early = 0.0 if arrival == "mocap first" else 0.0045
+        order = arrival_order(recording, np.zeros(len(imu)), np.full(len(mocap), -early))
+    reads = np.array([stream == MOCAP_STREAM for stream, _ in order])
+    tracker = Tracker.from_recording_info(recording.info)
+    deferred = 0
+    original_push = tracker.push_imu
+
+    def push_imu(*args):
+        nonlocal deferred
+        outcome = original_push(*args)
+        deferred += bool(tracker._pending)
+        return outcome
+
+    tracker.push_imu = push_imu
+    assert compare_run(recording, reference, order, tracker, reads) > len(mocap) // 2
+    assert deferred > len(mocap) // 2
+    tracker = Tracker.from_recording_info(recording.info)
+    fused = 0
+    for stream, index in order:
+        if stream == IMU_STREAM:
+            push(tracker, recording, stream, index)
+            continue
+        t = mocap.t[index]
+        visible = bool(mocap.visible[index])
+        outcome = tracker.push_mocap(t, mocap.position[index] if visible else None,
+                                     mocap.quaternion[index] if visible else None)
+        if outcome.accepted:
+            fused += 1
+            now = tracker.newest_time
+            assert tracker.estimate(now).time_since_fix == now - t
+    assert fused > len(mocap) // 2
+
+
+def test_a_read_fuses_the_frame_again_after_the_imu_sample_behind_it(recording, reference):
+    """A frame, then the IMU sample with its stamp (behind it: deferred): the read at that
+    time is the in-order one (the frame undone and fused again after the sample), not the
+    frame fused on the held sample."""
+    imu, mocap = recording.imu, recording.mocap
+    in_order, after = reference
+    events = fusion_order(recording)
+    frame = 50
+    sample = int(np.flatnonzero(imu.t == mocap.t[frame])[0])
+    position = events.index((MOCAP_STREAM, frame))
+    assert events[position - 1] == (IMU_STREAM, sample)
+    tracker = Tracker.from_recording_info(recording.info)
+    for stream, index in events[:position - 1]:
+        push(tracker, recording, stream, index)
+    push(tracker, recording, MOCAP_STREAM, frame)
+    early = tracker.estimate(mocap.t[frame])  # the frame on the held sample
+    push(tracker, recording, IMU_STREAM, sample)
+    assert len(tracker._pending) == 1 and tracker._rollback is not None  # deferred
+    assert_same(tracker.estimate(mocap.t[frame]), after[position])
+    assert not np.array_equal(early.position, after[position].position)
+
+
+def test_a_reset_counts_the_deferred_samples_first(recording):
+    """reset() while IMU samples wait behind a frame: the health counters (time tracked,
+    fixes, ...) are the in-order run's, as if every sample had been fused before the reset."""
+    imu, mocap = recording.imu, recording.mocap
+    events = fusion_order(recording)
+    frame = 30
+    sample = int(np.flatnonzero(imu.t == mocap.t[frame])[0])
+    position = events.index((MOCAP_STREAM, frame))
+    in_order, late = (Tracker.from_recording_info(recording.info) for _ in range(2))
+    for stream, index in events[:position + 1]:
+        push(in_order, recording, stream, index)
+    for stream, index in events[:position - 1]:
+        push(late, recording, stream, index)
+    push(late, recording, MOCAP_STREAM, frame)
+    push(late, recording, IMU_STREAM, sample)
+    assert late._pending  # deferred
+    in_order.reset()
+    late.reset()
+    expected, health = in_order.health.as_dict(), late.health.as_dict()
+    assert (expected.pop("replays"), health.pop("replays")) == (0, 1)
+    assert health == expected and health["time_tracked_s"] > 0.0

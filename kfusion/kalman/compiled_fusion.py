@@ -88,6 +88,11 @@ class CompiledFusion:
         """Copy of the event counts (keys :data:`kfusion.kalman.filter.COUNTER_NAMES`)."""
         return dict(zip(compiled.COUNTER_INDEX, self._counters.tolist(), strict=True))
 
+    def counter(self, name: str) -> int:
+        """One of :attr:`counters` (a key of :data:`kfusion.kalman.filter.COUNTER_NAMES`),
+        without copying them all (the Tracker reads ``resets`` around every frame)."""
+        return int(self._counters[compiled.COUNTER_INDEX[name]])
+
     @property
     def time(self) -> float | None:
         """Time of the state, s (None before the first event)."""
