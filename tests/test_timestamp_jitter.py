@@ -72,10 +72,9 @@ def test_batch_runs_measure_the_recordings_jitter() -> None:
     assert resolve_parameters(clean, None, {"timestamp_jitter": 1e-3}).timestamp_jitter == 1e-3
 
 
+@pytest.mark.broad
 def test_broad_clocks_have_no_jitter() -> None:
     trials = broad_trials()
-    if not trials:
-        pytest.skip("BROAD data (../shared/data/broad) not available")
     from kfusion.readers.broad import read_broad
 
     recording = read_broad(trials[0], mocap_step=3)
