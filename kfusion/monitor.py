@@ -262,8 +262,8 @@ def gap_clock_evidence(horizons_s: ArrayLike, errors: ArrayLike, velocity_change
     if len(h) < 4 or not (np.isfinite(e).all() and np.isfinite(r).all()):
         return None
     basis = np.column_stack([np.ones_like(h), h])
-    projection = np.eye(len(h)) - basis @ np.linalg.pinv(basis)
-    e_off, r_off = projection @ e, projection @ r
+    e_off = e - basis @ np.linalg.lstsq(basis, e, rcond=None)[0]
+    r_off = r - basis @ np.linalg.lstsq(basis, r, rcond=None)[0]
     return float(np.sum(r_off * e_off)), float(np.sum(r_off * r_off))
 
 
@@ -729,11 +729,19 @@ class ConsistencyMonitor:
         prediction's horizon (:func:`fix_covariance_under_scale`; R: the configured mocap noise,
         the gain's own); ``covariance`` unchanged at any other time (a gap: there the scale of
         :meth:`variance_scale` applies) or before a second fix (the first only initialises)."""
-        if self._last_fix is None or t != self._last_fix[0] or math.isinf(self._fix_horizon):
+        scale = self.fix_scale(t)
+        if scale == 1.0:
             return covariance
         return fix_covariance_under_scale(covariance,
-                                          self._shadow.params.mocap_position_noise ** 2,
-                                          self.variance_scale(self._fix_horizon))
+                                          self._shadow.params.mocap_position_noise ** 2, scale)
+
+    def fix_scale(self, t: float) -> float:
+        """The scale :meth:`at_fix` applies at t (s): that of the last fused fix's prediction
+        horizon when t is that fix's time and the scale exceeds 1, else 1 (nothing to widen;
+        callers skip forming the covariance)."""
+        if self._last_fix is None or t != self._last_fix[0] or math.isinf(self._fix_horizon):
+            return 1.0
+        return max(1.0, self.variance_scale(self._fix_horizon))
 
     def cover_rivals(self, t: float, position: NDArray[np.float64],
                      covariance: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -397,9 +397,8 @@ class _RowRecorder:
             self.output_matrix[row] = H
             self.output_offset[row] = offset
             if self.monitor is not None:
-                covariance = output_covariance(H, fusion._kf.P)
-                at_fix = self.monitor.at_fix(outcome.t, covariance)
-                if at_fix is not covariance:
+                if self.monitor.fix_scale(outcome.t) > 1.0:  # the covariance only then
+                    at_fix = self.monitor.at_fix(outcome.t, output_covariance(H, fusion._kf.P))
                     self.at_fix_variance[row] = np.diag(at_fix)
                 widened = self.monitor.cover_rivals(outcome.t,
                                                     output_point(H, fusion._kf.x, offset),
