@@ -145,7 +145,8 @@ from kfusion.conventions import (
 from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, short_repr
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, event_key
 from kfusion.kalman.filter import ACCEPTED, GATED, OCCLUDED, REACQUIRED
-from kfusion.monitor import MonitorReport
+from kfusion.monitor import CLOCK, MonitorReport
+from kfusion.online_clock import DEFAULT_WINDOW_S, OnlineClockCheck
 from kfusion.profiles import ImuProfile, imu_profile
 from kfusion.recording import RecordingInfo, check_clock, parse_info
 from kfusion.streamhealth import (
@@ -286,6 +287,11 @@ class Health:
         markers_used: markers fused from :meth:`Tracker.push_markers` frames.
         markers_rejected: visible markers rejected one by one by their own gate (a frame
             whose every visible marker was rejected also counts in ``gate_rejections``).
+        clock_offset_s, clock_offset_std_s: the IMU clock offset against the mocap (positive:
+            the IMU clock behind) and its 1-sigma, s, from the newest online timing
+            (:mod:`kfusion.online_clock`); NaN before one.
+        clock_problem: that timing's finding when it refused the clock (the tracker then
+            bridges nothing), else "".
     """
 
     imu_pushed: int
@@ -312,6 +318,9 @@ class Health:
     time_rebases: int = 0
     markers_used: int = 0
     markers_rejected: int = 0
+    clock_offset_s: float = math.nan
+    clock_offset_std_s: float = math.nan
+    clock_problem: str = ""
 
     def as_dict(self) -> dict[str, Any]:
         """Plain nested dict (for logging or YAML/JSON)."""
@@ -338,6 +347,10 @@ class TrackerOptions:
         max_time_jump_s: s; a stamp more than this ahead of the newest time of both streams is
             rejected ``implausible_time`` unless consistent samples confirm the jump
             (:class:`kfusion.streamhealth.TimeGuard`). > 0.
+        clock_window_s: s of data in each online timing of the IMU clock against the mocap
+            (:mod:`kfusion.online_clock`: one every 2.5 s of mocap time; an offset beyond
+            ``kfusion check``'s rule stops the bridging). Default 5 s; 0 turns the watch off
+            (Kalman only; the baseline has no bound to keep).
     """
 
     fix_timeout_s: float = FIX_TIMEOUT_S
@@ -345,11 +358,12 @@ class TrackerOptions:
     checkpoint_interval_s: float = 0.02
     accelerometer_range: float | None = None
     max_time_jump_s: float = DEFAULT_MAX_TIME_JUMP_S
+    clock_window_s: float = DEFAULT_WINDOW_S
 
     def __post_init__(self) -> None:
         for name, positive in (("fix_timeout_s", True), ("max_delay_s", False),
                                ("checkpoint_interval_s", True), ("accelerometer_range", True),
-                               ("max_time_jump_s", True)):
+                               ("max_time_jump_s", True), ("clock_window_s", False)):
             value = getattr(self, name)
             if value is None and name == "accelerometer_range":
                 continue
@@ -513,7 +527,7 @@ class _Estimator(Protocol):
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str: ...
 
-    def read(self, t: float) -> _Reading | None: ...
+    def read(self, t: float, trust_model: bool = True) -> _Reading | None: ...
 
     def finite(self) -> bool: ...
 
@@ -579,7 +593,7 @@ class _BaselineEstimator:
     def orientation_gated(self) -> int:
         return 0
 
-    def read(self, t: float) -> _Reading | None:
+    def read(self, t: float, trust_model: bool = True) -> _Reading | None:
         output = self._tracker.estimate(t)
         if output.status == LOST:
             return None
@@ -670,16 +684,19 @@ class _KalmanEstimator:
                            self._fusion, prior)
         return _KALMAN_OUTCOMES[outcome.kind], outcome.markers_used, outcome.markers_gated
 
-    def read(self, t: float) -> _Reading | None:
+    def read(self, t: float, trust_model: bool = True) -> _Reading | None:
+        """The reading at t (s); ``trust_model`` False (the IMU clock refused,
+        :mod:`kfusion.online_clock`) reads as when the monitor refuses the model."""
         if not self._fusion.initialised:
             return None
         step = self._fusion.estimate(t)  # new arrays
         covariance = step.position_covariance
         std = step.std
-        if not self.monitor.bridging_allowed:
-            # the monitor found the IMU model broken (NIS or shadow gaps far out of bounds):
-            # its predictions, and the fused posterior built on them, are not trusted; at a
-            # fix the position is that fix alone (covariance R), elsewhere it is unknown
+        if not (trust_model and self.monitor.bridging_allowed):
+            # the monitor found the IMU model broken (NIS or shadow gaps far out of bounds),
+            # or the clock watch the IMU clock: its predictions, and the fused posterior built
+            # on them, are not trusted; at a fix the position is that fix alone (covariance
+            # R), elsewhere it is unknown
             fix = self.monitor.fix_only(t)
             if fix is None:
                 return None
@@ -1076,6 +1093,7 @@ class Tracker:
         if interval != math.inf and interval > stream.longest_interval_s:
             stream.longest_interval_s = interval
         self._watch.imu(time)
+        self._clock_watch.imu((time, a0, a1, a2, g0, g1, g2))
         stream.last_t = t
         stream.last_values = (accelerometer, gyroscope)
         stream.accepted += 1
@@ -1131,6 +1149,7 @@ class Tracker:
         stream.last_t, stream.last_values = t, (point, rotation)
         stream.accepted += 1
         self._watch.mocap(t)
+        self._clock_watch.mocap(t, point, rotation, reason in (ACCEPTED, REACQUIRED))
         return PushOutcome(reason in (ACCEPTED, REACQUIRED), reason)
 
     @_locked
@@ -1221,7 +1240,7 @@ class Tracker:
         reading = None
         if status != LOST and math.isfinite(t):
             try:
-                reading = self._estimator.read(t)
+                reading = self._estimator.read(t, not self._clock_watch.refused)
             except _NUMERICAL_ERRORS:
                 reading = None
             if reading is not None and not _finite_reading(reading,
@@ -1259,7 +1278,12 @@ class Tracker:
         baseline."""
         self._flush()
         monitor = getattr(self._estimator, "monitor", None)
-        return None if monitor is None else monitor.report()
+        if monitor is None:
+            return None
+        report = monitor.report()
+        if self._clock_watch.refused:  # the online timing refused the IMU clock
+            return dataclasses.replace(report, bridging_allowed=False, suspected_cause=CLOCK)
+        return report
 
     @property
     @_locked
@@ -1273,6 +1297,7 @@ class Tracker:
             gap = max(gap, book.key[0] - book.fix_time)
         mocap_rejected = dict(mocap.rejected)
         mocap_rejected[GATED] = counts.gated
+        clock = self._clock_watch.latest
         return Health(
             imu_pushed=imu.pushed, imu_accepted=imu.accepted,
             imu_rejected=MappingProxyType(dict(imu.rejected)), imu_saturated=imu.saturated,
@@ -1287,6 +1312,9 @@ class Tracker:
             orientation_gated=self._estimator.orientation_gated(),
             time_rebases=self._guard.rebases, markers_used=counts.markers_used,
             markers_rejected=counts.markers_rejected,
+            clock_offset_s=math.nan if clock is None else clock.offset_s,
+            clock_offset_std_s=math.nan if clock is None else clock.std_s,
+            clock_problem="" if clock is None else clock.problem,
         )
 
     @_locked
@@ -1311,6 +1339,7 @@ class Tracker:
             "resets": self._resets, "replays": self._replays, "watch": self._watch,
             "guard": self._guard, "newest": self._newest,
             "horizons": (self._imu_newest, self._mocap_newest, self._frame_period),
+            "clock_watch": self._clock_watch.state(),
         })
         newest = math.nan if self._book.key is None else self._book.key[0]
         return TrackerSnapshot(method=self.method, t=newest,
@@ -1338,6 +1367,7 @@ class Tracker:
         self._watch, self._guard = state["watch"], state["guard"]
         self._newest, self._pending, self._rollback = state["newest"], deque(), None
         self._imu_newest, self._mocap_newest, self._frame_period = state["horizons"]
+        self._clock_watch.restore(state["clock_watch"])
 
     @_locked
     def __repr__(self) -> str:
@@ -1372,6 +1402,8 @@ class Tracker:
         self._newest = None
         self._imu_newest = self._mocap_newest = -math.inf
         self._frame_period = math.inf
+        self._clock_watch = OnlineClockCheck(self._imu_to_body, self.options.clock_window_s
+                                       if self.method == "kalman" else 0.0)
         if self.options.max_delay_s > 0:
             self._checkpoints.append(_Checkpoint((-math.inf, -1), self._estimator.snapshot(),
                                                  self._book.copy()))

@@ -278,6 +278,18 @@ def confirming_halves(y: np.ndarray, design: np.ndarray, drift_ppm: float,
     return None
 
 
+def accelerometer_clock_finding(offset: float, std: float, over: str = "") -> str | None:
+    """Test 7's rule on an accelerometer timing of ``offset`` +- ``std`` s (positive: the IMU
+    clock behind the mocap): beyond :data:`FINE_CLOCK_TOLERANCE_S` plus :data:`OFFSET_SIGMAS`
+    sigma, the finding's words ("IMU clock about 9.9 ms behind the mocap (timed ...)"), else
+    None. ``over`` names the data timed (e.g. " over the last 5 s"). Shared by ``kfusion
+    check`` and the Tracker's online watch (:mod:`kfusion.clockwatch`)."""
+    if abs(offset) <= FINE_CLOCK_TOLERANCE_S + OFFSET_SIGMAS * std:
+        return None
+    return (f"IMU clock about {abs(offset) * 1e3:.1f} ms {_side(offset)} the mocap (timed by "
+            f"the accelerometer against the mocap's acceleration{over}, +- {std * 1e3:.1f} ms)")
+
+
 def fine_clock_problem(recording: Recording, start: float, notes: list[str]) -> str | None:
     """Tests 7 and 8 of the module docstring on a recording on the mocap clock whose mount and
     gravity passed: the finding, or None (with a note of what was measured or why not).
@@ -301,10 +313,9 @@ def fine_clock_problem(recording: Recording, start: float, notes: list[str]) -> 
                      "visible mocap run long enough")
         return None
     offset, std = found.middle_offset, found.middle_offset_std
-    if abs(offset) > FINE_CLOCK_TOLERANCE_S + OFFSET_SIGMAS * std:
-        return (f"IMU clock about {abs(offset) * 1e3:.1f} ms {_side(offset)} the mocap "
-                f"(timed by the accelerometer against the mocap's acceleration, +- "
-                f"{std * 1e3:.1f} ms): {CALIBRATE_FIX}")
+    finding = accelerometer_clock_finding(offset, std)
+    if finding is not None:
+        return f"{finding}: {CALIBRATE_FIX}"
     # one system, linearised at the middle offset without drift: the halves are timed on it,
     # and its rows' weights and times give the spread (they hardly depend on the drift)
     middle = 0.5 * float(recording.imu.t[0] + recording.imu.t[-1])
