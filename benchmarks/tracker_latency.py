@@ -170,7 +170,7 @@ class NoOpEstimator:
     def update(self, t: float, position: object, quaternion: object) -> str:
         return "accepted"
 
-    def read(self, t: float) -> object:
+    def read(self, t: float, trust_model: bool = True) -> object:
         return self._reading
 
     def finite(self) -> bool:
