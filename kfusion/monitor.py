@@ -51,6 +51,14 @@ offset it reads -5 to -8 ms +- 0.4-0.8 ms, where ``check``'s accelerometer timin
 the offset is beyond ``clock_tolerance_s`` by ``clock_sigmas``. Health reports it. Measured on
 60 s simulated recordings, an undeclared 20 ms offset is named on all 4 scenarios.
 
+A fix fused with a prediction the monitor found wrong (:meth:`ConsistencyMonitor.at_fix`): the
+posterior ``P+`` assumes the prediction's ``P-``. With the shadow gaps' scale ``s`` for that
+prediction's horizon it is ``P+ + (s - 1)(P+ - P+ R^-1 P+)`` (:func:`fix_covariance_under_scale`),
+and while the windowed NIS test fails high with factor ``k`` it gains ``(k - 1)(R - P+)``
+(:func:`fix_covariance_under_innovation_factor`): a few ms after the last fix ``P-`` is far below
+R, so innovations k times too large say the fused position is nearly as uncertain as the fix
+itself, not k times its ``P+``.
+
 Rival hypotheses (:meth:`ConsistencyMonitor.cover_rivals`): the gate cannot tell a marker swap
 from a broken model. A fix gated since the last fused one may be right, so the bound is widened
 to hold it (``P + d d^T + R``); a fix fused after gated ones (a swapped marker passing the gate
@@ -298,6 +306,36 @@ def clock_offset_estimate(evidence: Sequence[tuple[float, float]]
     gaps = len(pairs)
     variance = (gaps - 1) / gaps * float(np.sum((left_out - left_out.mean()) ** 2))
     return offset, math.sqrt(variance)
+
+
+def fix_covariance_under_innovation_factor(covariance: ArrayLike, noise_variance: float,
+                                          factor: float) -> NDArray[np.float64]:
+    """The covariance (3, 3) m^2 of a fused fix's position when the innovations are ``factor``
+    times larger than the filter's S = P- + R says (the windowed NIS test failed high: ``factor
+    = mean NIS / 3``), with R right and the excess in the prediction: ``P-_true = k S - R``.
+
+    With the filter's gain, ``e+ = (I - K) e- - K v`` and ``I - K = R S^-1``, so the fused error
+    has ``P+ + (k - 1) (I - K) S (I - K)^T = P+ + (k - 1) R S^-1 R``, and ``R S^-1 R = R - P+``
+    (``P+ = R S^-1 P- = R - R S^-1 R``)::
+
+        P_fix = P+ + (k - 1) (R - P+)
+
+    (scalar check: ``p = r``, ``k = 2``: ``P+ = r / 2``, the prediction's error ``2 (2 r) - r =
+    3 r``, fused with weights 1/2: ``(3 r + r) / 4 = r``; the formula: ``r / 2 + r / 2 = r``). At a
+    fix a few ms after the last one ``P-`` is far below R, so a failing NIS means the fused
+    position is nearly as uncertain as the fix itself (``(k - 1) R``), not ``k P+``. Only for
+    ``k > 1``; ``R - P+`` is clipped to its positive directions (a reported P+ beyond R: the
+    output point's orientation part, rivals). ``covariance``: ``P+`` (3, 3) m^2."""
+    P = np.asarray(covariance, dtype=float)
+    if not factor > 1.0:
+        return P
+    if not math.isfinite(factor):
+        return np.full((3, 3), math.inf)
+    excess = noise_variance * np.eye(3) - 0.5 * (P + P.T)
+    values, vectors = np.linalg.eigh(excess)
+    if values.min() < 0.0:
+        excess = (vectors * np.maximum(values, 0.0)) @ vectors.T
+    return P + (factor - 1.0) * excess
 
 
 def horizon_bin(horizon_s: float, edges_s: tuple[float, ...]) -> int:
@@ -725,23 +763,37 @@ class ConsistencyMonitor:
 
     def at_fix(self, t: float, covariance: NDArray[np.float64]) -> NDArray[np.float64]:
         """The position covariance (3, 3) m^2 at the time of the last fused fix, t (s), with the
-        prediction it was fused with taken at the scale the shadow gaps found for that
-        prediction's horizon (:func:`fix_covariance_under_scale`; R: the configured mocap noise,
-        the gain's own); ``covariance`` unchanged at any other time (a gap: there the scale of
+        prediction it was fused with taken as the monitor found it: at the scale the shadow
+        gaps found for that prediction's horizon (:func:`fix_covariance_under_scale`), plus,
+        while the windowed NIS test fails high, the excess its matching factor implies
+        (:func:`fix_covariance_under_innovation_factor`) (R: the configured mocap noise, the
+        gain's own); ``covariance`` unchanged at any other time (a gap: there the scale of
         :meth:`variance_scale` applies) or before a second fix (the first only initialises)."""
-        scale = self.fix_scale(t)
-        if scale == 1.0:
+        scale, factor = self._fix_widening(t)
+        if scale == 1.0 and factor == 1.0:
             return covariance
-        return fix_covariance_under_scale(covariance,
-                                          self._shadow.params.mocap_position_noise ** 2, scale)
+        noise = self._shadow.params.mocap_position_noise ** 2
+        widened = fix_covariance_under_scale(covariance, noise, scale)
+        if factor > 1.0:
+            widened = widened + (fix_covariance_under_innovation_factor(covariance, noise, factor)
+                                 - covariance)
+        return widened
 
     def fix_scale(self, t: float) -> float:
-        """The scale :meth:`at_fix` applies at t (s): that of the last fused fix's prediction
-        horizon when t is that fix's time and the scale exceeds 1, else 1 (nothing to widen;
-        callers skip forming the covariance)."""
+        """Greater than 1 exactly when :meth:`at_fix` widens the covariance at t (s): the
+        larger of the shadow gaps' scale for the last fused fix's prediction horizon and the
+        NIS matching factor, when t is that fix's time, else 1 (callers skip forming the
+        covariance)."""
+        return max(self._fix_widening(t))
+
+    def _fix_widening(self, t: float) -> tuple[float, float]:
+        """(shadow-gap scale of the last fix's prediction, NIS matching factor while the
+        windowed test fails high), each at least 1; (1, 1) unless t is that fix's time."""
         if self._last_fix is None or t != self._last_fix[0] or math.isinf(self._fix_horizon):
-            return 1.0
-        return max(1.0, self.variance_scale(self._fix_horizon))
+            return 1.0, 1.0
+        bins = self._scales.scale_table()
+        shadow = float(bins[horizon_bin(self._fix_horizon, self.params.horizon_edges_s)])
+        return max(1.0, shadow), max(1.0, self._nis_scale())
 
     def cover_rivals(self, t: float, position: NDArray[np.float64],
                      covariance: NDArray[np.float64]) -> NDArray[np.float64]:
