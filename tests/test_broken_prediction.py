@@ -164,3 +164,49 @@ def test_unmodelled_sensor_errors_keep_the_bridging():
     assert run.monitor is not None
     assert run.monitor.bridging_allowed
     assert not (np.asarray(run.result.status) == "lost").any()
+
+
+def _monitor_with_fixes():
+    from kfusion.kalman import KalmanFusion, KalmanParameters
+    from kfusion.monitor import ConsistencyMonitor
+
+    params = KalmanParameters.from_profiles("mpu9255")
+    orientation = np.array([1.0, 0.0, 0.0, 0.0])
+    gravity = np.array([0.0, 0.0, -9.81])
+    fusion = KalmanFusion(orientation, gravity, params)
+    fusion.update(0.0, np.zeros(3), orientation)
+    monitor = ConsistencyMonitor(KalmanFusion(orientation, gravity, params), gravity=gravity)
+    return monitor, fusion, params.mocap_position_noise ** 2
+
+
+def test_recent_innovations_widen_the_next_fixes_by_hand():
+    from kfusion.kalman.filter import ACCEPTED, UpdateOutcome
+
+    monitor, fusion, noise_variance = _monitor_with_fixes()
+    posterior = np.eye(3) * 0.2 * noise_variance
+
+    def fix(t: float, nis: float) -> float:
+        monitor.mocap(t, np.zeros(3), UpdateOutcome(t, ACCEPTED, nis), fusion)
+        return monitor.fix_scale(t)
+
+    t = 0.0
+    for _ in range(10):  # consistent innovations: nothing to widen
+        t += 0.01
+        assert fix(t, 3.0) == 1.0
+    for _ in range(4):  # the sum of the last 5 stays below chi2_15(0.999) = 37.7
+        t += 0.01
+        fix(t, 12.0)
+    t += 0.01
+    # five NIS of 12: 60 > 37.7, factor 60 / 15 = 4: P+ + 3 (R - P+)
+    assert fix(t, 12.0) == pytest.approx(4.0)
+    np.testing.assert_allclose(monitor.at_fix(t, posterior),
+                               posterior + 3.0 * (noise_variance * np.eye(3) - posterior))
+    assert monitor.at_fix(t + 0.001, posterior) is posterior  # not at a fix's time
+    for _ in range(80):  # consistent again: settled 0.2 s after the last failing window
+        t += 0.01
+        fix(t, 3.0)
+    assert fix(t + 0.01, 3.0) == 1.0
+    # a fix ending a 0.1 s gap with NIS 15 > 11.3 (0.99): factor 15 / 3 = 5
+    assert fix(t + 0.11, 15.0) == pytest.approx(5.0)
+    assert fix(t + 0.12, 3.0) == pytest.approx(5.0)  # the next fixes too, for settle_s
+    assert fix(t + 0.40, 3.0) == 1.0
