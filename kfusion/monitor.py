@@ -773,8 +773,13 @@ class ConsistencyMonitor:
         return float(table[horizon_bin(horizon_s, self.params.horizon_edges_s)])
 
     def scale_table(self) -> NDArray[np.float64]:
-        """(bins,) variance scale per horizon bin (:meth:`variance_scale` of each bin)."""
-        return np.maximum(self._scales.scale_table(), self._nis_scale())
+        """(bins,) variance scale per horizon bin (:meth:`variance_scale` of each bin): the
+        shadow gaps' scale, the NIS matching factor and, in a gap whose last fix was fused
+        while recent innovations showed the predictions wrong (``settle_s``), their factor."""
+        floor = self._nis_scale()
+        if self._last_fix is not None and self._last_fix[0] <= self._settle_until:
+            floor = max(floor, self._settle_factor)
+        return np.maximum(self._scales.scale_table(), floor)
 
     def _nis_scale(self) -> float:
         """The NIS matching factor when the windowed test says the innovations are too large,

@@ -209,4 +209,5 @@ def test_recent_innovations_widen_the_next_fixes_by_hand():
     # a fix ending a 0.1 s gap with NIS 15 > 11.3 (0.99): factor 15 / 3 = 5
     assert fix(t + 0.11, 15.0) == pytest.approx(5.0)
     assert fix(t + 0.12, 3.0) == pytest.approx(5.0)  # the next fixes too, for settle_s
+    assert monitor.variance_scale(0.05) >= 5.0  # and a gap after them
     assert fix(t + 0.40, 3.0) == 1.0
