@@ -180,3 +180,19 @@ def test_no_broad_trial_is_refused():
         recording = first_seconds(read_broad(path, mocap_step=3), 60.0)
         _, tracker = _run(Streams.of(recording))
         assert tracker.health.clock_problem == "", path.name
+
+
+def test_pooled_timing_by_hand():
+    from kfusion.online_clock import ClockTiming, pooled_timing
+
+    one = ClockTiming(end=5.0, offset_s=0.004, std_s=0.001, problem="")
+    assert pooled_timing((one,), 2.0) is one
+    two = ClockTiming(end=7.5, offset_s=0.007, std_s=0.002, problem="")
+    pooled = pooled_timing((one, two), 2.0)
+    # weights 1e6 and 2.5e5: (4 + 0.25 * 7) / 1.25 = 4.6 ms; variance 2 / 1.25e6
+    assert pooled.offset_s == pytest.approx(0.0046)
+    assert pooled.std_s == pytest.approx(np.sqrt(2.0 / 1.25e6))
+    # beyond 2 ms + 2 sigma (2 + 2.53 = 4.53 ms): refused, in check's words
+    assert "about 4.6 ms behind the mocap" in pooled.problem
+    # disjoint windows (overlap 1): no inflation
+    assert pooled_timing((one, two), 1.0).std_s == pytest.approx(np.sqrt(1.0 / 1.25e6))
