@@ -793,12 +793,16 @@ class ConsistencyMonitor:
     def fix_only(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """The position from the fixes alone, for when the IMU model is not trusted
         (:attr:`bridging_allowed` False): at the time of the last fused fix, that fix (3,) m
-        with the mocap noise R = sigma_mocap^2 I (3, 3) m^2; None at any other time (without a
-        trusted motion model the position between fixes is unknown)."""
+        with the mocap noise R = sigma_mocap^2 I (3, 3) m^2, times the innovations' factor of
+        :meth:`at_fix` when that exceeds 1 (the mocap may be what is noisier); None at any
+        other time (without a trusted motion model the position between fixes is unknown)."""
         if self._last_fix is None or t != self._last_fix[0]:
             return None
         noise = self._shadow.params.mocap_position_noise ** 2
-        return self._last_fix[1].copy(), noise * np.eye(3)
+        # the innovations' factor (at_fix): when they are too large the mocap may be the part
+        # that is noisier than configured, and the fix alone then has k R, not R
+        _, factor = self._fix_widening(t)
+        return self._last_fix[1].copy(), factor * noise * np.eye(3)
 
     def at_fix(self, t: float, covariance: NDArray[np.float64]) -> NDArray[np.float64]:
         """The position covariance (3, 3) m^2 at the time of the last fused fix, t (s), with the

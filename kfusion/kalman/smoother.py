@@ -417,6 +417,12 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                                           recorder.output_offset))
     if measurement == MARKERS:
         variance = partial_occlusion_floor(recording, variance, filtered_variance)
+    if watcher is not None:
+        # where the forward monitor widened a fused fix (its prediction, or the innovations,
+        # found worse than the model says: ConsistencyMonitor.at_fix), the smoothed row rests
+        # on the same fix and model: it is not presented as surer than that
+        variance = np.where(np.isfinite(recorder.at_fix_variance),
+                            np.maximum(variance, recorder.at_fix_variance), variance)
     holdout = None if monitor is None else holdout_scales(recording, params, monitor,
                                                           measurement=measurement,
                                                           engine=engine)
@@ -438,7 +444,10 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     trusted = (holdout is None or bool(allowed.all())) and bool(recorder.allowed.all())
     if not trusted:
         fix_position = np.where(fixed[:, None], recording.mocap.position, np.nan)
-        fix_variance = params.mocap_position_noise ** 2 + recorder.rival_variance
+        noise = params.mocap_position_noise ** 2
+        widened = np.where(np.isfinite(recorder.at_fix_variance),
+                           np.maximum(recorder.at_fix_variance, noise), noise)
+        fix_variance = widened + recorder.rival_variance
         status, position, variance = fix_only_rows(status, position, variance,
                                                    np.zeros(m, dtype=bool), fix_position,
                                                    fix_variance)
