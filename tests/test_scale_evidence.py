@@ -80,3 +80,11 @@ def test_the_hold_out_keeps_its_own_refusal_limit():
     error = np.asarray(run.result.position)[rows] - np.asarray(gapped.truth_position)[rows]
     coverage = float(np.mean((np.abs(error) <= 3 * np.asarray(run.result.std)[rows]).all(axis=1)))
     assert coverage >= 0.95, coverage
+
+
+def test_no_shrinking_beyond_the_evidence_by_hand():
+    from kfusion.monitor import scale_beyond_evidence
+
+    edges = (0.1, 0.3)
+    np.testing.assert_allclose(scale_beyond_evidence([0.5, 0.5, 2.0], [0.2, 0.31, 0.9], edges),
+                               [0.5, 1.0, 2.0])

@@ -23,7 +23,12 @@ from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
 from kfusion.kalman.markers import shared_run_lengths
 from kfusion.kalman.model import output_covariance, output_point, timestamp_jitter
 from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
-from kfusion.monitor import ConsistencyMonitor, MonitorParameters, MonitorReport
+from kfusion.monitor import (
+    ConsistencyMonitor,
+    MonitorParameters,
+    MonitorReport,
+    scale_beyond_evidence,
+)
 from kfusion.recording import Recording, on_mocap_clock
 from kfusion.streamhealth import FIX_TIMEOUT_S, tracking_status
 from kfusion.track_file import TrackResult
@@ -308,7 +313,8 @@ def apply_monitor(status: NDArray[np.str_], variance: NDArray[np.float64],
     bridged = status == BRIDGED
     index = np.minimum(np.searchsorted(np.asarray(edges_s), horizon_s, side="left"),
                        len(edges_s) - 1)
-    scale = np.where(bridged, scale_tables[np.arange(len(status)), index], 1.0)
+    scale = np.where(bridged, scale_beyond_evidence(
+        scale_tables[np.arange(len(status)), index], horizon_s, edges_s), 1.0)
     scale = np.where(np.isfinite(scale), scale, 1.0)
     variance = variance * scale[:, None]
     status = np.where(bridged & ~allowed, LOST, status)
