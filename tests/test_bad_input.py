@@ -256,6 +256,8 @@ def test_a_failed_sweep_table_write_keeps_the_previous_table(tmp_path, monkeypat
     ("max_bridge_s=1e300", r"max_bridge_s: expected at most 60 s, got 1e\+300"),
     ("accelerometer_noise_density=0", r"accelerometer_noise_density: expected a number > 0"),
     ("gate_probability=two", r"--set gate_probability: .*got 'two'"),
+    ("imu_latency_s=1e300", r"imu_latency_s: expected at most 1 s either way .*got 1e\+300"),
+    ("mocap_position_noise=1e-300", r"mocap_position_noise: expected at least 1e-06 m"),
     ("=3", r"--set: expected KEY=VALUE, got '=3'"),
 ])
 def test_malformed_set_values(folder, tmp_path, capsys, value, message):

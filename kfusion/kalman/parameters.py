@@ -26,6 +26,13 @@ DEFAULT_IMU_PROFILE: Final = "mpu9255"
 """IMU profile used when neither the caller nor ``recording.yaml`` names one (the paper's IMU)."""
 DEFAULT_MOCAP_PROFILE: Final = OPTITRACK.name
 """Mocap profile used when the caller names none."""
+MAX_LATENCY_S: Final = 1.0
+"""s: the largest ``|imu_latency_s|``: a lag longer than a second is a clock offset
+(recording.yaml's ``imu_time_offset``); 1e300 left every sample too late with a 900-character
+message."""
+MIN_POSITION_NOISE: Final = 1e-6
+"""m: the smallest mocap and marker position noise (a micrometre): below it the innovation
+covariance underflows (1e-300 stopped ``kfusion track`` with "Eigenvalues did not converge")."""
 
 @dataclass(frozen=True)
 class KalmanParameters:
@@ -36,7 +43,7 @@ class KalmanParameters:
         accelerometer_bias_random_walk: bias random-walk density sigma_b, m/s^3/sqrt(Hz), > 0.
         gyroscope_noise_density: white-noise density, rad/s/sqrt(Hz), >= 0.
         gyroscope_bias_random_walk: bias random-walk density, rad/s^2/sqrt(Hz), >= 0.
-        mocap_position_noise: 1-sigma per axis of a mocap position, m, > 0.
+        mocap_position_noise: 1-sigma per axis of a mocap position, m, at least 1e-6.
         mocap_orientation_noise: 1-sigma per axis of a mocap orientation, rad, >= 0.
         initial_bias_std: 1-sigma of the accelerometer bias before any fix, m/s^2, >= 0
             (the profile's turn-on bias).
@@ -147,6 +154,15 @@ class KalmanParameters:
                 raise ValueError(f"KalmanParameters.{name}: expected a number >= 0, "
                                  f"got {short_repr(value)}")
             object.__setattr__(self, name, number)
+        if abs(self.imu_latency_s) > MAX_LATENCY_S:
+            raise ValueError(f"KalmanParameters.imu_latency_s: expected at most {MAX_LATENCY_S:g} "
+                             f"s either way (a longer lag is a clock offset: imu_time_offset in "
+                             f"recording.yaml), got {short_repr(self.imu_latency_s)}")
+        for name in ("mocap_position_noise", "marker_position_noise"):
+            if getattr(self, name) < MIN_POSITION_NOISE:
+                raise ValueError(f"KalmanParameters.{name}: expected at least "
+                                 f"{MIN_POSITION_NOISE:g} m (a micrometre), got "
+                                 f"{short_repr(getattr(self, name))}")
         if self.max_bridge_s > MAX_BRIDGE_LIMIT_S:
             raise ValueError(f"KalmanParameters.max_bridge_s: expected at most "
                              f"{MAX_BRIDGE_LIMIT_S:g} s, got {short_repr(self.max_bridge_s)}")
