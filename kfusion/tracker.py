@@ -144,7 +144,7 @@ from kfusion.conventions import (
 )
 from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, short_repr
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, event_key
-from kfusion.kalman.filter import ACCEPTED, GATED, OCCLUDED, REACQUIRED
+from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, OCCLUDED, REACQUIRED
 from kfusion.monitor import CLOCK, MonitorReport
 from kfusion.online_clock import DEFAULT_WINDOW_S, OnlineClockCheck
 from kfusion.profiles import ImuProfile, imu_profile
@@ -183,6 +183,10 @@ BAD_QUATERNION: Final = "bad_quaternion"
 IMPLAUSIBLE_TIME: Final = "implausible_time"
 """A stamp implausibly far ahead of both streams (:class:`kfusion.streamhealth.TimeGuard`)."""
 
+FIXED: Final = (ACCEPTED, REACQUIRED, INITIALISED)
+"""Mocap outcomes whose fix was fused: the filter's own vocabulary
+(:data:`kfusion.kalman.filter.USED_OUTCOMES`), the first fix ``initialised`` as in ``kfusion
+track``'s outcome column."""
 IMU_REJECTIONS: Final = (NON_FINITE, OUT_OF_ORDER, DUPLICATE, CONFLICTING_DUPLICATE, TOO_LATE,
                          IMPLAUSIBLE_TIME)
 MOCAP_REJECTIONS: Final = (GATED, NON_FINITE, BAD_QUATERNION, OUT_OF_ORDER, DUPLICATE,
@@ -203,7 +207,8 @@ class PushOutcome:
     Attributes:
         accepted: True when the sample was fused (an IMU sample propagated the state, a mocap fix
             updated it). False for rejections, skipped duplicates and occluded frames.
-        reason: one of ``accepted``, ``saturated`` (IMU, fused but flagged), ``reacquired``,
+        reason: one of ``accepted``, ``initialised`` (the Kalman filter's first fix),
+            ``saturated`` (IMU, fused but flagged), ``reacquired``,
             ``occluded``, ``gated``, ``non_finite``, ``out_of_order``, ``duplicate``,
             ``conflicting_duplicate``, ``too_late``, ``bad_quaternion``, ``implausible_time``.
     """
@@ -742,8 +747,8 @@ class _KalmanEstimator:
         self.monitor.restore(snapshot[1])  # type: ignore[index]
 
 
-_KALMAN_OUTCOMES: Final = {"accepted": ACCEPTED, "initialised": ACCEPTED, "reacquired": REACQUIRED,
-                           "gated": GATED, "occluded": OCCLUDED}
+_KALMAN_OUTCOMES: Final = {"accepted": ACCEPTED, "initialised": INITIALISED,
+                           "reacquired": REACQUIRED, "gated": GATED, "occluded": OCCLUDED}
 """kfusion.kalman's update outcomes -> the tracker's reasons."""
 
 
@@ -1149,8 +1154,8 @@ class Tracker:
         stream.last_t, stream.last_values = t, (point, rotation)
         stream.accepted += 1
         self._watch.mocap(t)
-        self._clock_watch.mocap(t, point, rotation, reason in (ACCEPTED, REACQUIRED))
-        return PushOutcome(reason in (ACCEPTED, REACQUIRED), reason)
+        self._clock_watch.mocap(t, point, rotation, reason in FIXED)
+        return PushOutcome(reason in FIXED, reason)
 
     @_locked
     def push_markers(self, t: float, markers: Mapping[str, ArrayLike | None]) -> PushOutcome:
@@ -1201,7 +1206,7 @@ class Tracker:
         stream.last_t, stream.last_values = t, values
         stream.accepted += 1
         self._watch.mocap(t)
-        return PushOutcome(reason in (ACCEPTED, REACQUIRED), reason)
+        return PushOutcome(reason in FIXED, reason)
 
     @_locked
     def estimate(self, t: float | None = None) -> Estimate:
@@ -1663,7 +1668,7 @@ class Tracker:
         """Fix bookkeeping after a mocap frame's outcome."""
         book = self._book
         counts = book.counts
-        if outcome in (ACCEPTED, REACQUIRED):
+        if outcome in FIXED:
             counts.mocap_fused += 1
             counts.reacquisitions += outcome == REACQUIRED
             if book.fix_time != -math.inf:

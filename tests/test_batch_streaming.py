@@ -261,6 +261,11 @@ def test_the_latency_moves_imu_samples_in_time():
     run = run_filter(recording, params, monitor=None)
     assert run.counters["predictions"] == 3 and run.counters["imu_late"] == 0
     assert list(run.outcome) == ["initialised", "accepted"]
+    # one outcome vocabulary: the Tracker names the first fix as the batch does
+    tracker = Tracker(recording.info.imu_to_body, gravity, params=params)
+    reasons = [tracker.push_mocap(t, np.zeros(3), [1.0, 0.0, 0.0, 0.0]).reason
+               for t in recording.mocap.t]
+    assert reasons == ["initialised", "accepted"]
     fusion = KalmanFusion(recording.info.imu_to_body, gravity, params)
     fusion.predict(0.5, -gravity, np.zeros(3))
     assert fusion.time == 0.25

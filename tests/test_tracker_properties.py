@@ -33,8 +33,8 @@ GRAVITY = np.array([0.0, -9.81, 0.0])
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 HOME = np.array([0.2, 1.0, 0.3])
 RANGE = MPU9255.accelerometer_range
-REASONS = {"accepted", "saturated", "reacquired", "occluded", "gated", *IMU_REJECTIONS,
-           *MOCAP_REJECTIONS}
+REASONS = {"accepted", "initialised", "saturated", "reacquired", "occluded", "gated",
+           *IMU_REJECTIONS, *MOCAP_REJECTIONS}
 
 TIMES = ["step"] * 8 + ["lag"] * 6 + ["zero", "back", "dropout", "long", "huge", "overflow", "nan",
                         "inf"]
@@ -189,7 +189,8 @@ def run_calls(method: str, sequence) -> None:
                 outcome = tracker.push_mocap(t, position, quaternion)
                 pushed["mocap"] += 1
                 assert outcome.reason in REASONS
-                assert outcome.accepted == (outcome.reason in ("accepted", "reacquired"))
+                assert outcome.accepted == (outcome.reason in ("accepted", "reacquired",
+                                                               "initialised"))
             elif name == "estimate":
                 newest = tracker.estimate(tracker.newest_time).t
                 base = newest if math.isfinite(newest) else 0.0
