@@ -713,7 +713,9 @@ class _KalmanEstimator:
             covariance = covariance * scale
         else:  # at a fix: fused with a prediction the shadow gaps may have found worse
             covariance = self.monitor.at_fix(t, covariance)
-        covariance = self.monitor.cover_rivals(t, step.position, covariance)
+        # the rivals' part formed alone and added, in the batch recorder's order of
+        # operations (P + (d d^T + R), not (P + d d^T) + R): the two agree to the bit
+        covariance = covariance + self.monitor.cover_rivals(t, step.position, _ZERO_3X3)
         std = np.sqrt(np.diag(covariance))
         return _Reading(step.position, step.velocity, 0.5 * (covariance + covariance.T), std)
 
@@ -746,6 +748,11 @@ class _KalmanEstimator:
         self._fusion.restore(snapshot[0])  # type: ignore[index]
         self.monitor.restore(snapshot[1])  # type: ignore[index]
 
+
+_ZERO_3X3: Final = np.zeros((3, 3))
+"""Read-only zeros for :meth:`kfusion.monitor.ConsistencyMonitor.cover_rivals` (it returns a
+new array)."""
+_ZERO_3X3.flags.writeable = False
 
 _KALMAN_OUTCOMES: Final = {"accepted": ACCEPTED, "initialised": INITIALISED,
                            "reacquired": REACQUIRED, "gated": GATED, "occluded": OCCLUDED}
