@@ -624,7 +624,7 @@ class _KalmanEstimator:
             fusion_class = CompiledFusion
         self._fusion = fusion_class(imu_to_body, gravity, params, lever_arm=lever_arm)
         # the compiled engine's predict without its second validation of a checked sample
-        self._predict_valid = getattr(self._fusion, "predict_valid", None)
+        self._predict_valid_with = getattr(self._fusion, "predict_valid_with", None)
         # the consistency monitor (kfusion.monitor) with its shadow filter: scales the bound in
         # gaps as the shadow gaps showed it must, or refuses to bridge (read() gives None)
         self.monitor = ConsistencyMonitor(
@@ -641,13 +641,14 @@ class _KalmanEstimator:
     def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
         """A sample the tracker validated: t a finite float after the previous sample's stamp,
         accelerometer (3,) finite floats, gyroscope 3 finite floats."""
-        self._reckoning = None
-        if self._predict_valid is not None:
+        if self._predict_valid_with is not None:
             a0, a1, a2 = accelerometer.tolist()
             g0, g1, g2 = gyroscope
-            self._predict_valid(t, a0, a1, a2, g0, g1, g2)
-            self.monitor.imu_valid(t, a0, a1, a2, g0, g1, g2)  # its shadow is compiled too
+            # the filter and, in a shadow gap, the monitor's shadow (compiled too) in one call
+            self._reckoning = self._predict_valid_with(self.monitor.gap_shadow, t, a0, a1, a2,
+                                                       g0, g1, g2)
             return
+        self._reckoning = None
         self._fusion.predict(t, accelerometer, gyroscope)
         self.monitor.imu(t, accelerometer, gyroscope)
 
