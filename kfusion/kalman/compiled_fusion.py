@@ -34,9 +34,11 @@ from kfusion.kalman.filter import (
 from kfusion.kalman.parameters import KalmanParameters
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class CompiledSnapshot:
-    """Everything :meth:`CompiledFusion.restore` needs to continue a run bit-exactly."""
+    """Everything :meth:`CompiledFusion.restore` needs to continue a run bit-exactly (slots:
+    the Tracker takes two at every checkpoint, and a frozen dataclass without them takes
+    twice as long to build)."""
 
     configuration: tuple[float, ...]
     state: NDArray[np.float64]  # packed (kfusion.kalman.compiled.state_views)
