@@ -130,7 +130,8 @@ def time_estimator(recording: Recording) -> Timings:
     timings: Timings = {"push_imu": [], "push_mocap": [], "estimate": []}
     for t, stream, index in merge_events(imu.t.tolist(), mocap.t.tolist()):
         if stream == IMU_STREAM:
-            accelerometer = np.array(imu.accelerometer[index])
+            # the Tracker's form of a validated sample (kfusion.tracker._three): 3-tuples
+            accelerometer = tuple(imu.accelerometer[index].tolist())
             gyroscope = tuple(imu.gyroscope[index].tolist())
             start = clock()
             estimator.predict(t, accelerometer, gyroscope)

@@ -152,7 +152,7 @@ class CompiledFusion:
         """:meth:`predict` of a sample its caller has checked (the checks of :meth:`predict`:
         t a finite float after the previous sample's stamp; specific force a0..a2 m/s^2 and
         rate g0..g2 rad/s finite floats): one kernel call (the :class:`kfusion.tracker.Tracker`
-        validates every sample before it fuses it)."""
+        validates every sample before it fuses it, and calls :meth:`predict_valid_with`)."""
         counters = self._counters
         rejected = counters[_IMU_REJECTED]
         compiled.packed_predict(t, a0, a1, a2, g0, g1, g2, self._state, self._config,
