@@ -687,13 +687,14 @@ class ConsistencyMonitor:
         if self._start is not None:
             self._shadow.predict(t, accelerometer, gyroscope)
 
-    def imu_valid(self, t: float, a0: float, a1: float, a2: float, g0: float, g1: float,
-                  g2: float) -> None:
-        """:meth:`imu` of a sample its caller has checked, for a compiled shadow
-        (:meth:`kfusion.kalman.compiled_fusion.CompiledFusion.predict_valid`: t a finite float
-        after the previous sample's stamp, a0..a2 m/s^2 and g0..g2 rad/s finite floats)."""
-        if self._start is not None:
-            self._shadow.predict_valid(t, a0, a1, a2, g0, g1, g2)  # type: ignore[attr-defined]
+    @property
+    def gap_shadow(self) -> KalmanFusion | None:
+        """The shadow filter while a shadow gap runs (the filter :meth:`imu` predicts), else
+        None. A caller may predict it itself in place of :meth:`imu`, with the same sample as
+        the main filter (the compiled engine does both in one kernel call: :meth:`kfusion.
+        kalman.compiled_fusion.CompiledFusion.predict_valid_with`); the monitor's own state
+        does not change at IMU samples either way."""
+        return self._shadow if self._start is not None else None
 
     @property
     def has_gated_fix(self) -> bool:

@@ -306,6 +306,13 @@ class TimeGuard:
     rejected: int = 0
     rebases: int = 0
 
+    def settled(self, t: float, present: float) -> bool:
+        """True when :meth:`check` of a finite stamp t (s) against ``present`` (s) would
+        accept it and change nothing: t within ``max_jump_s`` of the present, no suspect
+        stamps waiting (the common case, one comparison at IMU rate)."""
+        return present - self.max_jump_s <= t <= present + self.max_jump_s \
+            and not self.ahead and not self.behind
+
     def check(self, t: float, stream: int, present: float, streams_seen: set[int]) -> str:
         """Judge a finite stamp t (s) of ``stream`` against ``present`` (s, -inf if none)."""
         if t > present + self.max_jump_s and present != -math.inf:

@@ -488,6 +488,21 @@ def _vector(where: str, name: str, value: object, size: int, unit: str) -> NDArr
 _FLOAT64: Final = np.dtype(np.float64)
 
 
+_Three = tuple[float, float, float]
+"""An IMU vector: specific force in m/s^2 or rate in rad/s, IMU frame."""
+
+
+def _three(where: str, name: str, value: object, unit: str) -> _Three:
+    """``value`` as 3 floats; ValueError as :func:`_vector` for a wrong shape or type (non-finite
+    values pass). A plain float64 array (the common case, at IMU rate) is read without a copy:
+    the floats are new objects the caller cannot change."""
+    if type(value) is np.ndarray and value.shape == (3,) and value.dtype is _FLOAT64:
+        x, y, z = value.tolist()
+    else:
+        x, y, z = _vector(where, name, value, 3, unit).tolist()
+    return x, y, z
+
+
 def _time(where: str, t: object) -> float:
     """``t`` as a float; ValueError when it is not a real number (NaN/inf pass)."""
     if type(t) is float:
@@ -528,7 +543,7 @@ class _Estimator(Protocol):
     imu_dropout_s: float
     accelerometer_range: float
 
-    def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None: ...
+    def predict(self, t: float, accelerometer: _Three, gyroscope: _Three) -> None: ...
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str: ...
 
@@ -569,7 +584,7 @@ class _BaselineEstimator:
         self._imu_interval: float | None = None
         self._outage_since_fix = False
 
-    def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
+    def predict(self, t: float, accelerometer: _Three, gyroscope: _Three) -> None:
         if self._imu_time is not None:
             self._imu_interval = t - self._imu_time
             if self._imu_interval > self.imu_dropout_s:
@@ -643,7 +658,7 @@ class _KalmanEstimator:
             fusion_class = CompiledFusion
         self._fusion = fusion_class(imu_to_body, gravity, params, lever_arm=lever_arm)
         # the compiled engine's predict without its second validation of a checked sample
-        self._predict_valid = getattr(self._fusion, "predict_valid", None)
+        self._predict_valid_with = getattr(self._fusion, "predict_valid_with", None)
         # the consistency monitor (kfusion.monitor) with its shadow filter: scales the bound in
         # gaps as the shadow gaps showed it must, or refuses to bridge (read() gives None)
         self.monitor = ConsistencyMonitor(
@@ -657,16 +672,17 @@ class _KalmanEstimator:
         self._monitor_state: object | None = None
         self._reckoning: float | None = None  # dead_reckoning_until() until the next event
 
-    def predict(self, t: float, accelerometer: NDArray, gyroscope: tuple) -> None:
+    def predict(self, t: float, accelerometer: _Three, gyroscope: _Three) -> None:
         """A sample the tracker validated: t a finite float after the previous sample's stamp,
-        accelerometer (3,) finite floats, gyroscope 3 finite floats."""
-        self._reckoning = None
-        if self._predict_valid is not None:
-            a0, a1, a2 = accelerometer.tolist()
+        accelerometer and gyroscope 3 finite floats each."""
+        if self._predict_valid_with is not None:
+            a0, a1, a2 = accelerometer
             g0, g1, g2 = gyroscope
-            self._predict_valid(t, a0, a1, a2, g0, g1, g2)
-            self.monitor.imu_valid(t, a0, a1, a2, g0, g1, g2)  # its shadow is compiled too
+            # the filter and, in a shadow gap, the monitor's shadow (compiled too) in one call
+            self._reckoning = self._predict_valid_with(self.monitor.gap_shadow, t, a0, a1, a2,
+                                                       g0, g1, g2)
             return
+        self._reckoning = None
         self._fusion.predict(t, accelerometer, gyroscope)
         self.monitor.imu(t, accelerometer, gyroscope)
 
@@ -810,7 +826,7 @@ class _Stream:
     """Arrival-side state and counters of one input stream."""
 
     last_t: float = -math.inf
-    last_values: tuple[NDArray, NDArray] | None = None
+    last_values: tuple[ArrayLike, ArrayLike] | None = None  # IMU: 3-tuples; mocap: arrays
     pushed: int = 0
     accepted: int = 0
     rejected: dict[str, int] = field(default_factory=dict)
@@ -1082,12 +1098,12 @@ class Tracker:
         t = _time("push_imu", t)
         if self._imu_clock_mapped:  # onto the mocap clock (the one clock model)
             t = float(imu_time_to_mocap(t, *self.imu_clock))
-        accelerometer = _vector("push_imu", "acc", acc, 3, "m/s^2")
-        gyroscope = _vector("push_imu", "gyro", gyro, 3, "rad/s")
+        accelerometer = _three("push_imu", "acc", acc, "m/s^2")
+        gyroscope = _three("push_imu", "gyro", gyro, "rad/s")
         stream = self._imu
         stream.pushed += 1
-        a0, a1, a2 = accelerometer.tolist()
-        g0, g1, g2 = gyroscope.tolist()
+        a0, a1, a2 = accelerometer
+        g0, g1, g2 = gyroscope
         isfinite = math.isfinite
         if not (isfinite(t) and isfinite(a0) and isfinite(a1) and isfinite(a2)
                 and isfinite(g0) and isfinite(g1) and isfinite(g2)):
@@ -1099,7 +1115,7 @@ class Tracker:
         saturated = max(abs(a0), abs(a1), abs(a2)) >= self._saturation_level
         # fused at the time the sample describes (kfusion.kalman.events: stamp - latency)
         time, _ = event_key(t, IMU_STREAM, self._estimator.imu_latency_s)
-        if self._fuse((time, IMU_STREAM, accelerometer, (g0, g1, g2), saturated, t)) is None:
+        if self._fuse((time, IMU_STREAM, accelerometer, gyroscope, saturated, t)) is None:
             return self._reject(stream, TOO_LATE)
         interval = t - stream.last_t  # inf for the first sample (after a reset too)
         if interval != math.inf and interval > stream.longest_interval_s:
@@ -1425,8 +1441,11 @@ class Tracker:
         (:class:`kfusion.streamhealth.TimeGuard`): True to reject it. A confirmed jump restarts
         the streams from the new time (counted in ``health.time_rebases``)."""
         imu, mocap = self._imu.last_t, self._mocap.last_t
+        present = imu if imu > mocap else mocap
+        if self._guard.settled(t, present):
+            return False
         seen = _STREAMS_SEEN[imu != -math.inf, mocap != -math.inf]
-        verdict = self._guard.check(t, stream, imu if imu > mocap else mocap, seen)
+        verdict = self._guard.check(t, stream, present, seen)
         if verdict == REBASE:
             self._flush()  # the deferred samples count before the restart
             self._estimator = self._new_estimator()
@@ -1438,7 +1457,7 @@ class Tracker:
         return PushOutcome(False, reason)
 
     def _order_rejection(self, stream: _Stream, t: float,
-                         values: tuple[NDArray, NDArray]) -> PushOutcome:
+                         values: tuple[ArrayLike, ArrayLike]) -> PushOutcome:
         """The rejection of a time not after the stream's last one (``t <= stream.last_t``)."""
         if t < stream.last_t or stream.last_values is None:
             return self._reject(stream, OUT_OF_ORDER)
@@ -1602,9 +1621,9 @@ class Tracker:
 
         ``event`` is ``(t, stream, first, second, saturated, stamp)``: ``(t, stream)`` is the
         event's :func:`kfusion.kalman.events.event_key` (t: the time the event describes on the
-        mocap clock, an IMU sample's stamp minus the latency), then accelerometer (3,) array and
-        gyroscope 3-tuple for the IMU, position (3,) and quaternion (4,) (NaN when absent) for
-        the mocap, and the stamp on the mocap clock (what the estimator is given).
+        mocap clock, an IMU sample's stamp minus the latency), then accelerometer and gyroscope
+        (3-tuples of floats) for the IMU, position (3,) and quaternion (4,) arrays (NaN when
+        absent) for the mocap, and the stamp on the mocap clock (what the estimator is given).
 
         Inputs are validated, so over a normal interval a finite state stays finite. After a
         long interval (a dropout) or a saturated sample the model may overflow; the state is

@@ -444,3 +444,48 @@ def test_compiled_smoother_with_the_monitor_equals_filterpy_on_a_broad_trial() -
                          rng=np.random.default_rng(0), gap_range=(0.1, 0.3)).recording
     assert_smoothers_agree(run_smoother(recording, engine="compiled"),
                            run_smoother(recording, engine="filterpy"))
+
+
+def test_predict_with_shadow_equals_two_predictions() -> None:
+    """CompiledFusion.predict_valid_with (the filter and the monitor's shadow in one kernel
+    call) leaves both states and counters bit-identical to two predict_valid calls, returns
+    dead_reckoning_until() exactly, and refuses a shadow of another configuration. The
+    shadow starts from the filter's snapshot after a fix (as the monitor's does) and the
+    recording has saturated and implausible samples and gaps."""
+    from kfusion.kalman import KalmanParameters
+    from kfusion.kalman.compiled_fusion import CompiledFusion
+
+    recording = corrupt_imu()
+    info = recording.info
+    params = KalmanParameters.from_profiles("mpu9255", accelerometer_range=12.0)
+    paired, shadow, alone, alone_shadow = (
+        CompiledFusion(info.imu_to_body, info.gravity, params) for _ in range(4))
+    imu, mocap = recording.imu, recording.mocap
+    frame = 0
+    shadow_running = False
+    for index, t in enumerate(imu.t.tolist()):
+        while frame < len(mocap.t) and mocap.t[frame] < t:
+            visible = bool(mocap.visible[frame])
+            for fusion in (paired, alone):
+                fusion.update(mocap.t[frame], mocap.position[frame] if visible else None,
+                              mocap.quaternion[frame] if visible else None)
+            if visible and frame % 40 == 0:  # a shadow gap starts from the filter's state
+                shadow.restore(paired.snapshot())
+                alone_shadow.restore(alone.snapshot())
+                shadow_running = True
+            frame += 1
+        values = imu.accelerometer[index].tolist() + imu.gyroscope[index].tolist()
+        if not all(map(math.isfinite, values)):
+            continue  # the callers pass checked samples only
+        horizon = paired.predict_valid_with(shadow if shadow_running else None, t, *values)
+        alone.predict_valid(t, *values)
+        if shadow_running:
+            alone_shadow.predict_valid(t, *values)
+        assert horizon == alone.dead_reckoning_until()
+    assert alone.counters["imu_rejected"] == 1 and alone.counters["accelerometer_saturated"] > 0
+    for mine, theirs in ((paired, alone), (shadow, alone_shadow)):
+        assert np.array_equal(mine.snapshot().state, theirs.snapshot().state, equal_nan=True)
+        assert mine.counters == theirs.counters
+    other = CompiledFusion(info.imu_to_body, info.gravity, KalmanParameters.from_profiles("um7"))
+    with pytest.raises(ValueError, match="shadow: expected a CompiledFusion built with the same"):
+        paired.predict_valid_with(other, 100.0, 0.0, 0.0, 9.8, 0.0, 0.0, 0.0)

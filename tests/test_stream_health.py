@@ -460,3 +460,24 @@ def test_estimates_from_other_threads_while_pushing_change_nothing(simulation):
     np.testing.assert_array_equal(first.position, second.position)
     np.testing.assert_array_equal(first.covariance, second.covariance)
     assert alone.health == shared.health
+
+
+def test_time_guard_settled_means_check_accepts_and_changes_nothing() -> None:
+    """TimeGuard.settled (the Tracker's shortcut) is True exactly when check() would accept
+    the stamp and leave the guard as it was: stamps at and around present +- max_jump_s, with
+    and without suspect stamps waiting."""
+    from kfusion.streamhealth import ACCEPT, TimeGuard
+
+    present, jump = 10.0, 2.0
+    stamps = [present + offset for offset in (-2.5, -2.0, -1.999, 0.0, 1.999, 2.0, 2.001, 5.0)]
+    stamps += [math.nextafter(present - jump, -math.inf), math.nextafter(present + jump, math.inf)]
+    waiting: list[tuple[list[float], list[tuple[float, int]]]] = [
+        ([], []), ([13.0], []), ([], [(7.0, 0)])]
+    for t in stamps:
+        for ahead, behind in waiting:
+            guard = TimeGuard(max_jump_s=jump, ahead=list(ahead), behind=list(behind))
+            settled = guard.settled(t, present)
+            verdict = guard.check(t, 0, present, {0, 1})
+            unchanged = guard.ahead == ahead and guard.behind == behind and guard.rejected == 0
+            assert settled == (verdict == ACCEPT and unchanged), (t, ahead, behind)
+    assert not TimeGuard().settled(0.0, -math.inf)  # no present yet: the full check

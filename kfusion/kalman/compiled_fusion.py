@@ -34,9 +34,11 @@ from kfusion.kalman.filter import (
 from kfusion.kalman.parameters import KalmanParameters
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class CompiledSnapshot:
-    """Everything :meth:`CompiledFusion.restore` needs to continue a run bit-exactly."""
+    """Everything :meth:`CompiledFusion.restore` needs to continue a run bit-exactly (slots:
+    the Tracker takes two at every checkpoint, and a frozen dataclass without them takes
+    twice as long to build)."""
 
     configuration: tuple[float, ...]
     state: NDArray[np.float64]  # packed (kfusion.kalman.compiled.state_views)
@@ -70,6 +72,7 @@ class CompiledFusion:
         self._gyroscope_range = float(params.gyroscope_range)
         # read-only view for the Tracker's finiteness check (the kernels write in place)
         self._kf = SimpleNamespace(x=self._x, P=self._P)
+        self._checked_shadow: CompiledFusion | None = None  # see predict_valid_with
 
     # ------------------------------------------------------------------ public state
 
@@ -149,12 +152,37 @@ class CompiledFusion:
         """:meth:`predict` of a sample its caller has checked (the checks of :meth:`predict`:
         t a finite float after the previous sample's stamp; specific force a0..a2 m/s^2 and
         rate g0..g2 rad/s finite floats): one kernel call (the :class:`kfusion.tracker.Tracker`
-        validates every sample before it fuses it)."""
+        validates every sample before it fuses it, and calls :meth:`predict_valid_with`)."""
         counters = self._counters
         rejected = counters[_IMU_REJECTED]
         compiled.packed_predict(t, a0, a1, a2, g0, g1, g2, self._state, self._config,
                                 counters, self.size)
         return REJECTED if counters[_IMU_REJECTED] != rejected else PREDICTED
+
+    def predict_valid_with(self, shadow: CompiledFusion | None, t: float, a0: float, a1: float,
+                           a2: float, g0: float, g1: float, g2: float) -> float:
+        """:meth:`predict_valid` of one checked sample on this filter and on ``shadow`` (a
+        filter built with the same arguments: the consistency monitor's shadow while a shadow
+        gap runs, :attr:`kfusion.monitor.ConsistencyMonitor.gap_shadow`; None: none) in one
+        kernel call, as two :meth:`predict_valid` calls would; returns this filter's
+        :meth:`dead_reckoning_until` after the sample, s."""
+        if shadow is None:
+            shadow_state, shadow_counters = _NO_STATE, _NO_COUNTERS
+        else:
+            if shadow is not self._checked_shadow:
+                self._check_shadow(shadow)
+            shadow_state, shadow_counters = shadow._state, shadow._counters
+        return compiled.packed_predict_with_shadow(
+            t, a0, a1, a2, g0, g1, g2, self._state, self._counters, shadow_state,
+            shadow_counters, self._config, self.size)
+
+    def _check_shadow(self, shadow: CompiledFusion) -> None:
+        """ValueError unless ``shadow`` is a CompiledFusion of this configuration (its kernel
+        call uses this filter's configuration array); remembered as checked."""
+        if not isinstance(shadow, CompiledFusion) or shadow._configuration != self._configuration:
+            raise ValueError("predict_valid_with: shadow: expected a CompiledFusion built with "
+                             "the same parameters, imu_to_body, gravity and lever_arm")
+        self._checked_shadow = shadow
 
     def update(self, t: float, position: ArrayLike | None,
                quaternion: ArrayLike | None = None) -> UpdateOutcome:
@@ -230,6 +258,8 @@ class CompiledFusion:
 _IMU_REJECTED: Final = compiled.COUNTER_INDEX["imu_rejected"]
 _IMU_DUPLICATES: Final = compiled.COUNTER_INDEX["imu_duplicates"]
 _NO_POSITION: Final = np.zeros(3)  # read by no kernel: an occluded frame's z
+_NO_STATE: Final = np.zeros(0)  # no shadow (CompiledFusion.predict_valid_with)
+_NO_COUNTERS: Final = np.zeros(0, dtype=np.int64)
 
 
 def _three_floats(value: object) -> list[float] | None:
