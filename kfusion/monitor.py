@@ -587,7 +587,14 @@ class ConsistencyMonitor:
         self._gravity = np.asarray(gravity, dtype=float)
         self._scales = HorizonScales(self.params)
         self._nis: deque[float] = deque(maxlen=self.params.nis_window)
-        self._nis_scale_value: float | None = None  # _nis_scale() of _nis (None: not yet)
+        # values derived from _nis and _scales, kept until those change (in mocap(), at a fused
+        # fix and when a shadow gap closes) or a restore replaces them with the snapshot's own
+        # (None: not computed yet). Each is built new, never changed in place: snapshots share
+        # them (_copy_state).
+        self._nis_window_value: tuple[float, float] | None = None  # _nis_window()
+        self._scale_table_value: NDArray[np.float64] | None = None  # scale_table(), read-only
+        self._std_scale_value: float | None = None  # _std_scale()
+        self._bridging_value: bool | None = None  # bridging_allowed
         self._start: float | None = None  # time of the running shadow gap's last fix
         self._next_start = -math.inf
         self._rows_h: list[float] = []
@@ -634,7 +641,7 @@ class ConsistencyMonitor:
 
         if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
             self._nis.append(outcome.nis)
-            self._nis_scale_value = None
+            self._forget_derived()
         if outcome.kind in USED_OUTCOMES and position is not None:
             self._fix_horizon = math.inf if self._last_fix is None else t - self._last_fix[0]
             self._last_fix = (t, np.array(position, dtype=float))
@@ -674,7 +681,7 @@ class ConsistencyMonitor:
         configured = self._shadow.params.mocap_position_noise ** 2
         if len(self._nis) < self.params.nis_window:
             return configured
-        return configured * min(1.0, nis_matching_scale(list(self._nis)))
+        return configured * min(1.0, self._nis_window()[0])
 
     def _close(self) -> None:
         """End the running shadow gap and keep its evidence."""
@@ -682,6 +689,7 @@ class ConsistencyMonitor:
             # a new HorizonScales, never the one a snapshot may share (_copy_state)
             self._scales = self._scales.copy()
             self._scales.add_gap(self._rows_h, self._rows_scale)
+            self._forget_derived(nis=False)
             self._accelerations.append(fit_acceleration_error(self._rows_h,
                                                               np.array(self._rows_error)))
             clock = gap_clock_evidence(self._rows_h, self._rows_error, self._rows_velocity)
@@ -701,17 +709,36 @@ class ConsistencyMonitor:
         return float(table[horizon_bin(horizon_s, self.params.horizon_edges_s)])
 
     def scale_table(self) -> NDArray[np.float64]:
-        """(bins,) variance scale per horizon bin (:meth:`variance_scale` of each bin)."""
-        return np.maximum(self._scales.scale_table(), self._nis_scale())
+        """(bins,) variance scale per horizon bin (:meth:`variance_scale` of each bin);
+        read-only (computed once per change of the evidence)."""
+        if self._scale_table_value is None:
+            table = np.maximum(self._scales.scale_table(), self._nis_scale())
+            table.flags.writeable = False
+            self._scale_table_value = table
+        return self._scale_table_value
 
     def _nis_scale(self) -> float:
         """The NIS matching factor when the windowed test says the innovations are too large,
         else 0 (no constraint: a small NIS says R is pessimistic, not that P may shrink)."""
-        if self._nis_scale_value is None:  # read at every row; _nis changes at fused fixes
+        return self._nis_window()[1]
+
+    def _nis_window(self) -> tuple[float, float]:
+        """(the NIS matching factor ``mean NIS / 3`` of the window (:func:`nis_matching_scale`,
+        1 when empty), :meth:`_nis_scale`), from one mean over the window, computed once per
+        fused fix (the batch driver and the Tracker read them at every row)."""
+        if self._nis_window_value is None:
             test = windowed_nis_test(list(self._nis), self.params.nis_probability)
-            self._nis_scale_value = (nis_matching_scale(list(self._nis))
-                                     if test.mean > test.upper else 0.0)
-        return self._nis_scale_value
+            # nis_matching_scale's value from the same mean: float(values.mean() / 3)
+            matching = test.mean / 3 if test.samples else 1.0
+            self._nis_window_value = (matching, matching if test.mean > test.upper else 0.0)
+        return self._nis_window_value
+
+    def _forget_derived(self, nis: bool = True) -> None:
+        """Drop the values derived from ``_scales`` and, with ``nis``, from ``_nis`` (after a
+        change of them)."""
+        if nis:
+            self._nis_window_value = None
+        self._scale_table_value = self._std_scale_value = self._bridging_value = None
 
     def fix_only(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """The position from the fixes alone, for when the IMU model is not trusted
@@ -772,7 +799,10 @@ class ConsistencyMonitor:
         """False when the shadow gaps need a larger std scale than ``max_std_scale``, or, while
         fewer than ``minimum_shadow_gaps`` gaps are in, one above ``cause_std_scale`` (thin
         evidence of a broken model: its scale is not yet known well enough to bridge on)."""
-        return bridging_allowed(self._std_scale(), self._scales.gaps, self.params)
+        if self._bridging_value is None:
+            self._bridging_value = bridging_allowed(self._std_scale(), self._scales.gaps,
+                                                    self.params)
+        return self._bridging_value
 
     def clock_offset(self) -> tuple[float, float] | None:
         """(offset s, 1-sigma s) of the IMU clock the shadow gaps show (positive: the IMU clock
@@ -793,7 +823,10 @@ class ConsistencyMonitor:
         return abs(offset) > self.params.clock_tolerance_s + self.params.clock_sigmas * std
 
     def _std_scale(self) -> float:
-        return math.sqrt(max(float(self._scales.scale_table().max()), self._nis_scale()))
+        if self._std_scale_value is None:
+            self._std_scale_value = math.sqrt(max(float(self._scales.scale_table().max()),
+                                                  self._nis_scale()))
+        return self._std_scale_value
 
     def snapshot(self) -> object:
         """A copy of the monitor's state; :meth:`restore` continues from it exactly."""
@@ -801,8 +834,9 @@ class ConsistencyMonitor:
 
     def state_snapshot(self) -> object:
         """The part of :meth:`snapshot` besides the shadow filter: it changes only in
-        :meth:`mocap` and :meth:`restore` (and a cached scale at reads), so a caller may keep
-        one and pair it with later :meth:`shadow_snapshot` s until the next of those calls."""
+        :meth:`mocap` and :meth:`restore` (and the values derived from it, cached at reads),
+        so a caller may keep one and pair it with later :meth:`shadow_snapshot` s until the
+        next of those calls."""
         state = vars(self).copy()
         for key in _NOT_STATE:
             del state[key]
@@ -844,8 +878,9 @@ _NOT_STATE: Final = ("_shadow", "params", "_gravity")
 def _copy_state(state: dict[str, object]) -> dict[str, object]:
     """A copy of the monitor's state dict that shares nothing mutable with it: deques and lists
     are copied; floats, tuples, the arrays the monitor stores (each built new and never changed
-    in place) and the :class:`HorizonScales` (replaced by a changed copy, never changed in
-    place: :meth:`ConsistencyMonitor._close`) are shared. It stands for ``copy.deepcopy``,
+    in place), the values it derives from them (cached, replaced, never changed in place) and
+    the :class:`HorizonScales` (replaced by a changed copy, never changed in place:
+    :meth:`ConsistencyMonitor._close`) are shared. It stands for ``copy.deepcopy``,
     which took about 0.7 ms per snapshot (the Tracker takes one at mocap rate); copying the
     scales' rows too took most of the 10-20 µs a snapshot still cost."""
     copied = state.copy()

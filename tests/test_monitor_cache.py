@@ -1,0 +1,57 @@
+"""The consistency monitor's cached values (the NIS window's factors, the scale table, the std
+scale, ``bridging_allowed``): at every row of a run, and after restores of earlier snapshots,
+they equal the values computed afresh from the monitor's state."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from kfusion.kalman.batch import make_fusion, make_monitor, process_recording, resolve_parameters
+from kfusion.monitor import ConsistencyMonitor, MonitorParameters
+from kfusion.recording import ImuSamples
+from kfusion.simulate import OcclusionSpec, simulate
+
+
+def derived(monitor: ConsistencyMonitor) -> tuple[object, ...]:
+    """Every value the monitor derives from its NIS window and shadow-gap scales."""
+    return (monitor.bridging_allowed, monitor.scale_table().tolist(), monitor._std_scale(),
+            monitor._mocap_noise_variance(), monitor.variance_scale(0.25),
+            monitor.report().as_dict()["std_scale"])
+
+
+def test_cached_values_equal_fresh_ones_at_every_row_and_after_restores():
+    # an IMU clock 20 ms late (the shadow gaps' scale grows until the monitor refuses) and a
+    # configured mocap noise 0.7x the simulated one (the windowed NIS fails high at times):
+    # the refusal and the NIS scale switch on and off, shadow gaps close at fixes and at
+    # occluded frames
+    recording = simulate("random_reach", seed=2, duration=10.0,
+                         occlusions=OcclusionSpec(gap_range=(0.1, 0.3), spacing=0.5)).recording
+    imu = recording.imu
+    recording = dataclasses.replace(recording, imu=ImuSamples(
+        t=imu.t + 0.02, accelerometer=imu.accelerometer, gyroscope=imu.gyroscope))
+    params = resolve_parameters(recording, None, {})
+    params = dataclasses.replace(params, mocap_position_noise=0.7 * params.mocap_position_noise)
+    settings = MonitorParameters(nis_window=20, minimum_shadow_gaps=3, shadow_period_s=0.3)
+    fusion = make_fusion(recording, params, "compiled")
+    monitor = make_monitor(recording, params, settings, "compiled")
+    fresh = make_monitor(recording, params, settings, "compiled")
+    assert monitor is not None and fresh is not None
+    kept: list[tuple[object, tuple[object, ...]]] = []
+    seen: set[tuple[bool, bool]] = set()
+
+    def on_row(row: int, _outcome: object) -> None:
+        values = derived(monitor)  # cached from here on until the next frame
+        assert derived(monitor) == values
+        snapshot = monitor.snapshot()
+        fresh.restore(snapshot)
+        fresh._forget_derived()  # computed afresh from the restored state
+        assert derived(fresh) == values, f"row {row}"
+        seen.add((bool(values[0]), monitor._nis_scale() > 0))
+        if row % 97 == 0:
+            kept.append((snapshot, values))
+
+    process_recording(recording, fusion, on_row, monitor)
+    assert len(seen) == 4  # bridging allowed or refused, with and without the NIS scale
+    for snapshot, values in kept:  # restoring an earlier state brings its values back
+        monitor.restore(snapshot)
+        assert derived(monitor) == values
