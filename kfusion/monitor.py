@@ -627,6 +627,12 @@ class ConsistencyMonitor:
             self._shadow.predict_valid(t, a0, a1, a2, g0, g1, g2)  # type: ignore[attr-defined]
 
     @property
+    def takes_checked_samples(self) -> bool:
+        """True when the shadow filter has the compiled engine's checked entry, so
+        :meth:`imu_valid` may be called."""
+        return hasattr(self._shadow, "predict_valid")
+
+    @property
     def has_gated_fix(self) -> bool:
         """True when a fix was gated since the last fused one (then the caller passes the
         filter's prior to :meth:`mocap`, see :meth:`cover_rivals`)."""
@@ -793,6 +799,14 @@ class ConsistencyMonitor:
             _, offset, rival_covariance = self._rival
             covariance = covariance + np.outer(offset, offset) + rival_covariance
         return covariance
+
+    def has_rivals(self, t: float) -> bool:
+        """True when :meth:`cover_rivals` widens a covariance at t (s): a fix was gated since
+        the last fused one, or a fix fused after gated ones is younger than ``max_bridge_s``
+        (callers skip forming the point and covariance otherwise)."""
+        return self._gated_fix is not None or (
+            self._rival is not None
+            and t - self._rival[0] <= self._shadow.params.max_bridge_s)
 
     @property
     def bridging_allowed(self) -> bool:

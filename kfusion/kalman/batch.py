@@ -9,6 +9,7 @@ estimate right after that row was processed.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, cast
@@ -152,9 +153,26 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
     while events and events[-1][1] == IMU_STREAM:
         events.pop()
     fast = type(fusion) is KalmanFusion  # its validated internals; other engines: public API
+    # the compiled engine's checked entry (CompiledFusion.predict_valid), for it and its shadow
+    predict_valid = getattr(fusion, "predict_valid", None) if not fast else None
+    shadow_valid = monitor is not None and monitor.takes_checked_samples
+    latest = -math.inf  # the latest finite stamp fed: no filter holds a later one
     for t, stream, index in events:
         if stream == IMU_STREAM:
             stamp = stamps[index]
+            if predict_valid is not None and finite[index] and stamp > latest:
+                # what predict() checks (finite, after the held stamp) holds: its kernel call
+                latest = stamp
+                a0, a1, a2 = accelerometer[index]
+                g0, g1, g2 = gyroscope[index]
+                predict_valid(stamp, a0, a1, a2, g0, g1, g2)
+                if shadow_valid and monitor is not None:
+                    monitor.imu_valid(stamp, a0, a1, a2, g0, g1, g2)
+                elif monitor is not None:
+                    monitor.imu(stamp, accelerometer[index], gyroscope[index])
+                continue
+            if finite[index]:
+                latest = max(latest, stamp)
             if fast and finite[index] and (fusion._imu_stamp is None
                                            or stamp > fusion._imu_stamp):
                 f, omega = accelerometer[index], gyroscope[index]
@@ -400,10 +418,11 @@ class _RowRecorder:
                 if self.monitor.fix_scale(outcome.t) > 1.0:  # the covariance only then
                     at_fix = self.monitor.at_fix(outcome.t, output_covariance(H, fusion._kf.P))
                     self.at_fix_variance[row] = np.diag(at_fix)
-                widened = self.monitor.cover_rivals(outcome.t,
-                                                    output_point(H, fusion._kf.x, offset),
-                                                    np.zeros((3, 3)))
-                self.rival_variance[row] = np.diag(widened)
+                if self.monitor.has_rivals(outcome.t):  # else the row's zeros stand
+                    widened = self.monitor.cover_rivals(outcome.t,
+                                                        output_point(H, fusion._kf.x, offset),
+                                                        np.zeros((3, 3)))
+                    self.rival_variance[row] = np.diag(widened)
 
     @classmethod
     def from_kernel(cls, fusion: KalmanFusion, run: Any) -> _RowRecorder:
