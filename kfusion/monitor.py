@@ -96,9 +96,10 @@ CAUSES: Final = (CONSISTENT, GRAVITY, IMU_MOTION, IMU_NOISE, MOCAP_NOISE, CLOCK)
 # ---------------------------------------------------------------------------------------------
 
 
-@lru_cache(maxsize=128)
+@lru_cache(maxsize=1024)
 def chi2_quantile(probability: float, dof: int) -> float:
-    """F^-1 of chi-square with ``dof`` degrees of freedom (scipy, cached)."""
+    """F^-1 of chi-square with ``dof`` degrees of freedom (scipy, cached: a filling NIS window
+    of N fixes asks for 2 N of them, 200 with the default window, every run)."""
     from scipy.stats import chi2
 
     return float(chi2.ppf(probability, dof))
@@ -164,10 +165,17 @@ def windowed_nis_test(nis: ArrayLike, probability: float = 0.999, dof: int = 3) 
     if n == 0:
         return NisTest(math.nan, 0.0, math.inf, True, 0)
     mean = float(values.mean())
-    tail = 0.5 * (1.0 - probability)
-    lower = chi2_quantile(tail, dof * n) / n
-    upper = chi2_quantile(1.0 - tail, dof * n) / n
+    lower, upper = nis_interval(n, probability, dof)
     return NisTest(mean, lower, upper, lower <= mean <= upper, n)
+
+
+def nis_interval(samples: int, probability: float = 0.999, dof: int = 3) -> tuple[float, float]:
+    """(lower, upper): the interval the mean of ``samples`` NIS values of ``dof`` each lies in
+    with ``probability`` under a consistent filter,
+    ``F^-1_chi2(dof N)((1 -+ probability) / 2) / N`` (:func:`windowed_nis_test`)."""
+    tail = 0.5 * (1.0 - probability)
+    return (chi2_quantile(tail, dof * samples) / samples,
+            chi2_quantile(1.0 - tail, dof * samples) / samples)
 
 
 def nis_matching_scale(nis: ArrayLike, dof: int = 3) -> float:
@@ -733,10 +741,16 @@ class ConsistencyMonitor:
         1 when empty), :meth:`_nis_scale`), from one mean over the window, computed once per
         fused fix (the batch driver and the Tracker read them at every row)."""
         if self._nis_window_value is None:
-            test = windowed_nis_test(list(self._nis), self.params.nis_probability)
-            # nis_matching_scale's value from the same mean: float(values.mean() / 3)
-            matching = test.mean / 3 if test.samples else 1.0
-            self._nis_window_value = (matching, matching if test.mean > test.upper else 0.0)
+            # windowed_nis_test's mean and upper limit (mocap() keeps only finite NIS values,
+            # so its finiteness filter has nothing to remove), nis_matching_scale's value
+            # from the same mean: float(values.mean() / 3)
+            samples = len(self._nis)
+            if samples == 0:
+                self._nis_window_value = (1.0, 0.0)
+            else:
+                mean = float(np.fromiter(self._nis, float, samples).mean())
+                upper = nis_interval(samples, self.params.nis_probability)[1]
+                self._nis_window_value = (mean / 3, mean / 3 if mean > upper else 0.0)
         return self._nis_window_value
 
     def _forget_derived(self, nis: bool = True) -> None:

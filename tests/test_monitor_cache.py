@@ -7,7 +7,12 @@ from __future__ import annotations
 import dataclasses
 
 from kfusion.kalman.batch import make_fusion, make_monitor, process_recording, resolve_parameters
-from kfusion.monitor import ConsistencyMonitor, MonitorParameters
+from kfusion.monitor import (
+    ConsistencyMonitor,
+    MonitorParameters,
+    nis_matching_scale,
+    windowed_nis_test,
+)
 from kfusion.recording import ImuSamples
 from kfusion.simulate import OcclusionSpec, simulate
 
@@ -17,6 +22,15 @@ def derived(monitor: ConsistencyMonitor) -> tuple[object, ...]:
     return (monitor.bridging_allowed, monitor.scale_table().tolist(), monitor._std_scale(),
             monitor._mocap_noise_variance(), monitor.variance_scale(0.25),
             monitor.report().as_dict()["std_scale"])
+
+
+def nis_factors(monitor: ConsistencyMonitor) -> tuple[float, float]:
+    """The monitor's NIS factors by the public functions: the matching factor and the NIS
+    scale (the matching factor where the windowed test fails high, else 0)."""
+    window = list(monitor._nis)
+    test = windowed_nis_test(window, monitor.params.nis_probability)
+    matching = nis_matching_scale(window)
+    return matching, matching if test.mean > test.upper else 0.0
 
 
 def test_cached_values_equal_fresh_ones_at_every_row_and_after_restores():
@@ -41,6 +55,7 @@ def test_cached_values_equal_fresh_ones_at_every_row_and_after_restores():
 
     def on_row(row: int, _outcome: object) -> None:
         values = derived(monitor)  # cached from here on until the next frame
+        assert monitor._nis_window() == nis_factors(monitor)
         assert derived(monitor) == values
         snapshot = monitor.snapshot()
         fresh.restore(snapshot)
