@@ -22,6 +22,7 @@ two bit for bit.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Final, cast
 
@@ -38,9 +39,9 @@ from kfusion.recording import Recording
 
 CHECKPOINT_ROWS: Final = 32
 """Rows between the main filter's kept states: a state at any row is recomputed from the last
-kept one over fewer than this many rows (memory: one packed state per this many rows). A
-divisor of :data:`kfusion.kalman.compiled.SAVE_EVERY` (the smoother's states are among them)."""
-assert compiled.SAVE_EVERY % CHECKPOINT_ROWS == 0
+kept one over fewer than this many rows (memory: one packed state per this many rows). The
+run keeps them every ``gcd(CHECKPOINT_ROWS, SAVE_EVERY)`` rows (32 with the smoother's
+:data:`kfusion.kalman.compiled.SAVE_EVERY` of 1024), so that the smoother's are among them."""
 
 
 @dataclass(frozen=True)
@@ -142,11 +143,12 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
     imu_t, force, rate, mocap_t, position, quaternion, visible, stream, index = inputs
     config = reference.kernel_config()
     size = reference.size
+    every = math.gcd(CHECKPOINT_ROWS, compiled.SAVE_EVERY)
     run = compiled.run_kernel(imu_t, force, rate, mocap_t, position, quaternion, visible,
-                              stream, index, config, size, save_every=CHECKPOINT_ROWS)
+                              stream, index, config, size, save_every=every)
     if run.failed_event >= 0 or run.replay is None:
         return None
-    checkpoints = compiled.Checkpoints(run.replay, size, CHECKPOINT_ROWS)
+    checkpoints = compiled.Checkpoints(run.replay, size, every)
     frames = np.flatnonzero(np.asarray(stream) == MOCAP_STREAM)
     row_event = np.zeros(len(mocap_t), dtype=np.int64)
     row_event[np.asarray(index)[frames]] = frames
@@ -182,7 +184,7 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
                       cast(KalmanFusion, main), prior)
         recorder.record_monitor(row, outcome, initialised[row])
     kept = run.replay
-    step = compiled.SAVE_EVERY // CHECKPOINT_ROWS  # the smoother's states among the kept ones
+    step = compiled.SAVE_EVERY // every  # the smoother's states among the kept ones
     replay = compiled.Replay(kept.inputs, config, kept.first_state,
                              kept.saved_states[step - 1::step])
     return recorder, monitor, replay
