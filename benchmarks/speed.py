@@ -2,8 +2,8 @@
 
 Rows: a bare filterpy 9-state predict/update loop (the yardstick); the batch filter and the
 smoother per engine (``compiled``: numba kernels, ``filterpy``: KalmanFusion), without and with
-the consistency monitor (the default of ``kfusion track``; the monitor watches a filter event by
-event, so with it the compiled engine runs step by step); a sweep of N runs of
+the consistency monitor (the default of ``kfusion track``; with it the compiled engine runs in
+two passes, :mod:`kfusion.kalman.monitored`); a sweep of N runs of
 60 s recordings (IMU 200 Hz) on 2 processes, extrapolated to 1000 runs; the smoother's stored
 bytes per row against the state's; numba's import and the cold start (first call in a fresh
 process with an empty JIT cache, then with the cache written).
