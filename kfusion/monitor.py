@@ -240,10 +240,30 @@ def fix_covariance_under_scale(covariance: ArrayLike, noise_variance: float, sca
         return np.full((3, 3), math.inf)
     correction = P - P @ P / noise_variance
     correction = 0.5 * (correction + correction.T)
-    values, vectors = np.linalg.eigh(correction)
-    if values.min() < 0.0:
-        correction = (vectors * np.maximum(values, 0.0)) @ vectors.T
+    if not clearly_positive_definite(correction):  # else eigh would keep it as it is
+        values, vectors = np.linalg.eigh(correction)
+        if values.min() < 0.0:
+            correction = (vectors * np.maximum(values, 0.0)) @ vectors.T
     return P + (scale - 1.0) * correction
+
+
+def clearly_positive_definite(matrix: NDArray[np.float64], margin: float = 1e-8) -> bool:
+    """True when every eigenvalue of the symmetric (3, 3) ``matrix`` exceeds ``margin`` times
+    its largest entry (magnitude) by Gershgorin's circle theorem: each row's diagonal exceeds
+    the sum of its off-diagonal magnitudes by that much,
+
+        lambda_min >= min_i (A_ii - sum_{j != i} |A_ij|) > margin max |A_ij|.
+
+    An eigensolver's error is of the order of the machine epsilon (1e-16) times the matrix's
+    norm, far below that margin, so ``np.linalg.eigh`` then finds no negative eigenvalue: a
+    caller that only clips negative ones may skip it. False otherwise (including NaN)."""
+    entries = matrix.tolist()
+    (a, b, c), (d, e, f), (g, h, i) = entries
+    if not all(map(math.isfinite, entries[0] + entries[1] + entries[2])):
+        return False
+    largest = max(abs(a), abs(b), abs(c), abs(d), abs(e), abs(f), abs(g), abs(h), abs(i))
+    lowest = min(a - abs(b) - abs(c), e - abs(d) - abs(f), i - abs(g) - abs(h))
+    return lowest > margin * largest
 
 
 def gap_clock_evidence(horizons_s: ArrayLike, errors: ArrayLike, velocity_changes: ArrayLike
