@@ -141,6 +141,10 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
     ``recording``), with ``reference``'s configuration. None when the kernel stops at an event
     it cannot handle (the caller runs the event-by-event path)."""
     imu_t, force, rate, mocap_t, position, quaternion, visible, stream, index = inputs
+    frames = np.flatnonzero(np.asarray(stream) == MOCAP_STREAM)
+    order = np.asarray(index)[frames]
+    if not np.array_equal(order, np.arange(len(mocap_t))):
+        return None  # frames out of row order: the shadow gaps' rows are not consecutive
     config = reference.kernel_config()
     size = reference.size
     every = math.gcd(CHECKPOINT_ROWS, compiled.SAVE_EVERY)
@@ -149,10 +153,7 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
     if run.failed_event >= 0 or run.replay is None:
         return None
     checkpoints = compiled.Checkpoints(run.replay, size, every)
-    frames = np.flatnonzero(np.asarray(stream) == MOCAP_STREAM)
-    row_event = np.zeros(len(mocap_t), dtype=np.int64)
-    row_event[np.asarray(index)[frames]] = frames
-    events = row_event.tolist()
+    events = frames.tolist()  # each row's event
     times = np.asarray(mocap_t, dtype=float).tolist()
     info = recording.info
     shadow = GapShadow(CompiledFusion(info.imu_to_body, info.gravity, params,
@@ -170,7 +171,7 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
     nis = run.nis.tolist()
     shown = np.asarray(visible, dtype=bool).tolist()
     fixes = np.asarray(position, dtype=float)
-    for row in np.asarray(index)[frames].tolist():
+    for row in range(len(times)):
         t = times[row]
         prior = None
         if monitor.has_gated_fix:  # the filter's estimate before this frame
