@@ -3,15 +3,17 @@
 Rows: a bare filterpy 9-state predict/update loop (the yardstick: the ratio column divides each
 rate by its rate); the batch filter and the smoother per engine (``compiled``: numba kernels,
 ``filterpy``: KalmanFusion), without and with the consistency monitor (the default of ``kfusion
-track``; the monitor watches a filter event by event, so with it the compiled engine runs step by
-step); a sweep of N runs of 60 s recordings (IMU 200 Hz) on 2 processes, extrapolated to 1000
-runs; ``Tracker.push_imu``'s median (the best of 3 runs), also in step times of a bare loop
-run just before it (the machine's speed varies from hour to hour; issue 11's target of 20 µs was
-2.6 steps on a machine doing 130k steps/s, so machines compare by the steps); the smoother's
-stored bytes per row against the state's; numba's import and the cold start (first call in a
-fresh process with an empty JIT cache, then with the cache written).
+track``; with it the compiled engine runs in two passes, :mod:`kfusion.kalman.monitored`); a
+sweep of N runs of 60 s recordings (IMU 200 Hz) on 2 processes, extrapolated to 1000 runs;
+``Tracker.push_imu``'s median (the best of 3 runs), also in step times of a bare loop run just
+before it (the machine's speed varies from hour to hour; issue 11's target of 20 µs was 2.6
+steps on a machine doing 130k steps/s, so machines compare by the steps); the smoother's stored
+bytes per row against the state's; numba's import and the cold start (first call in a fresh
+process with an empty JIT cache, then with the cache written).
 
-Run: ``python benchmarks/speed.py [--quick]``. Numbers are one run on a shared machine.
+Run: ``python benchmarks/speed.py [--quick] [--monitor-only]``. ``--monitor-only`` times just
+the yardstick and the batch filter and smoother rows with and without the monitor (compiled
+engine; with ``--quick`` on the 20 s recording). Numbers are one run on a shared machine.
 """
 
 from __future__ import annotations
@@ -202,7 +204,13 @@ def main() -> None:
     parser.add_argument("--sweep-runs", type=int, default=None, metavar="N",
                         help="compiled sweep runs (default: 10 with --quick, else 40); "
                         "1000 measures the issue's target directly (about 2 min)")
+    parser.add_argument("--monitor-only", action="store_true",
+                        help="only the yardstick and the compiled batch filter and smoother "
+                        "rows, with and without the consistency monitor")
     args = parser.parse_args()
+    if args.monitor_only:
+        print_table(*monitor_rows(20.0 if args.quick else 60.0))
+        return
     seconds = 20.0 if args.quick else 60.0
     runs = args.sweep_runs or (10 if args.quick else 40)
     rows: list[tuple[str, str, str]] = []
@@ -243,6 +251,29 @@ def main() -> None:
         rows.append(("import numba", f"{numba_import:.2f} s", ""))
         rows.append(("first compiled call, empty JIT cache", f"{cold:.1f} s", ""))
         rows.append(("first compiled call, cache written", f"{warm:.2f} s", ""))
+    print_table(seconds, samples, rows)
+
+
+def monitor_rows(seconds: float) -> tuple[float, int, list[tuple[str, str, str]]]:
+    """The yardstick and the compiled batch filter and smoother without and with the
+    consistency monitor, on one recording of ``seconds``, back to back."""
+    bare = bare_filterpy_loop(20000)
+    rows = [("bare filterpy 9-state predict/update loop", f"{bare:,.0f} steps/s", "1.00x")]
+    data = recording(seconds)
+    samples = len(data.imu)
+    run_filter(recording(5.0), engine="compiled")  # load or compile the kernels
+    for label, function in (("batch kalman", run_filter), ("smoother", run_smoother)):
+        for monitor in (False, True):
+            options = {} if monitor else {"monitor": None}
+            rate = samples / timed(function, data, engine="compiled", repeat=2, **options)
+            rows.append((f"{label}, engine compiled, " + ("monitor on" if monitor
+                                                           else "no monitor"),
+                         f"{rate:,.0f} IMU samples/s", f"{rate / bare:.2f}x"))
+    return seconds, samples, rows
+
+
+def print_table(seconds: float, samples: int, rows: list[tuple[str, str, str]]) -> None:
+    """The markdown table of ``rows`` (path, speed, ratio) under a line naming the recording."""
     print(f"Recording: {seconds:.0f} s simulated arm lift, {samples} IMU samples at 200 Hz, "
           f"mocap 100 Hz with 0.1-0.3 s gaps.\n")
     print("| path | speed | ratio |")

@@ -104,9 +104,10 @@ CAUSES: Final = (CONSISTENT, GRAVITY, IMU_MOTION, IMU_NOISE, MOCAP_NOISE, CLOCK)
 # ---------------------------------------------------------------------------------------------
 
 
-@lru_cache(maxsize=128)
+@lru_cache(maxsize=1024)
 def chi2_quantile(probability: float, dof: int) -> float:
-    """F^-1 of chi-square with ``dof`` degrees of freedom (scipy, cached)."""
+    """F^-1 of chi-square with ``dof`` degrees of freedom (scipy, cached: a filling NIS window
+    of N fixes asks for 2 N of them, 200 with the default window, every run)."""
     from scipy.stats import chi2
 
     return float(chi2.ppf(probability, dof))
@@ -172,10 +173,17 @@ def windowed_nis_test(nis: ArrayLike, probability: float = 0.999, dof: int = 3) 
     if n == 0:
         return NisTest(math.nan, 0.0, math.inf, True, 0)
     mean = float(values.mean())
-    tail = 0.5 * (1.0 - probability)
-    lower = chi2_quantile(tail, dof * n) / n
-    upper = chi2_quantile(1.0 - tail, dof * n) / n
+    lower, upper = nis_interval(n, probability, dof)
     return NisTest(mean, lower, upper, lower <= mean <= upper, n)
+
+
+def nis_interval(samples: int, probability: float = 0.999, dof: int = 3) -> tuple[float, float]:
+    """(lower, upper): the interval the mean of ``samples`` NIS values of ``dof`` each lies in
+    with ``probability`` under a consistent filter,
+    ``F^-1_chi2(dof N)((1 -+ probability) / 2) / N`` (:func:`windowed_nis_test`)."""
+    tail = 0.5 * (1.0 - probability)
+    return (chi2_quantile(tail, dof * samples) / samples,
+            chi2_quantile(1.0 - tail, dof * samples) / samples)
 
 
 def nis_matching_scale(nis: ArrayLike, dof: int = 3) -> float:
@@ -240,10 +248,30 @@ def fix_covariance_under_scale(covariance: ArrayLike, noise_variance: float, sca
         return np.full((3, 3), math.inf)
     correction = P - P @ P / noise_variance
     correction = 0.5 * (correction + correction.T)
-    values, vectors = np.linalg.eigh(correction)
-    if values.min() < 0.0:
-        correction = (vectors * np.maximum(values, 0.0)) @ vectors.T
+    if not clearly_positive_definite(correction):  # else eigh would keep it as it is
+        values, vectors = np.linalg.eigh(correction)
+        if values.min() < 0.0:
+            correction = (vectors * np.maximum(values, 0.0)) @ vectors.T
     return P + (scale - 1.0) * correction
+
+
+def clearly_positive_definite(matrix: NDArray[np.float64], margin: float = 1e-8) -> bool:
+    """True when every eigenvalue of the symmetric (3, 3) ``matrix`` exceeds ``margin`` times
+    its largest entry (magnitude) by Gershgorin's circle theorem: each row's diagonal exceeds
+    the sum of its off-diagonal magnitudes by that much,
+
+        lambda_min >= min_i (A_ii - sum_{j != i} |A_ij|) > margin max |A_ij|.
+
+    An eigensolver's error is of the order of the machine epsilon (1e-16) times the matrix's
+    norm, far below that margin, so ``np.linalg.eigh`` then finds no negative eigenvalue: a
+    caller that only clips negative ones may skip it. False otherwise (including NaN)."""
+    entries = matrix.tolist()
+    (a, b, c), (d, e, f), (g, h, i) = entries
+    if not all(map(math.isfinite, entries[0] + entries[1] + entries[2])):
+        return False
+    largest = max(abs(a), abs(b), abs(c), abs(d), abs(e), abs(f), abs(g), abs(h), abs(i))
+    lowest = min(a - abs(b) - abs(c), e - abs(d) - abs(f), i - abs(g) - abs(h))
+    return lowest > margin * largest
 
 
 def gap_clock_evidence(horizons_s: ArrayLike, errors: ArrayLike, velocity_changes: ArrayLike
@@ -660,7 +688,14 @@ class ConsistencyMonitor:
         self._gravity = np.asarray(gravity, dtype=float)
         self._scales = HorizonScales(self.params)
         self._nis: deque[float] = deque(maxlen=self.params.nis_window)
-        self._nis_scale_value: float | None = None  # _nis_scale() of _nis (None: not yet)
+        # values derived from _nis and _scales, kept until those change (in mocap(), at a fused
+        # fix and when a shadow gap closes) or a restore replaces them with the snapshot's own
+        # (None: not computed yet). Each is built new, never changed in place: snapshots share
+        # them (_copy_state).
+        self._nis_window_value: tuple[float, float] | None = None  # _nis_window()
+        self._scale_table_value: NDArray[np.float64] | None = None  # scale_table(), read-only
+        self._std_scale_value: float | None = None  # _std_scale()
+        self._bridging_value: bool | None = None  # bridging_allowed
         self._start: float | None = None  # time of the running shadow gap's last fix
         self._next_start = -math.inf
         self._rows_h: list[float] = []
@@ -697,6 +732,12 @@ class ConsistencyMonitor:
         return self._shadow if self._start is not None else None
 
     @property
+    def takes_checked_samples(self) -> bool:
+        """True when the shadow filter has the compiled engine's checked entry
+        (``predict_valid``), so a caller may predict :attr:`gap_shadow` with it."""
+        return hasattr(self._shadow, "predict_valid")
+
+    @property
     def has_gated_fix(self) -> bool:
         """True when a fix was gated since the last fused one (then the caller passes the
         filter's prior to :meth:`mocap`, see :meth:`cover_rivals`)."""
@@ -711,7 +752,7 @@ class ConsistencyMonitor:
 
         if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
             self._nis.append(outcome.nis)
-            self._nis_scale_value = None
+            self._forget_derived()
             self._recent_nis = deque(self._recent_nis, maxlen=self.params.recent_fixes)
             self._recent_nis.append(outcome.nis)
             recent = sum(self._recent_nis)
@@ -768,7 +809,7 @@ class ConsistencyMonitor:
         configured = self._shadow.params.mocap_position_noise ** 2
         if len(self._nis) < self.params.nis_window:
             return configured
-        return configured * min(1.0, nis_matching_scale(list(self._nis)))
+        return configured * min(1.0, self._nis_window()[0])
 
     def _close(self) -> None:
         """End the running shadow gap and keep its evidence."""
@@ -776,6 +817,7 @@ class ConsistencyMonitor:
             # a new HorizonScales, never the one a snapshot may share (_copy_state)
             self._scales = self._scales.copy()
             self._scales.add_gap(self._rows_h, self._rows_scale)
+            self._forget_derived(nis=False)
             self._accelerations.append(fit_acceleration_error(self._rows_h,
                                                               np.array(self._rows_error)))
             clock = gap_clock_evidence(self._rows_h, self._rows_error, self._rows_velocity)
@@ -798,21 +840,45 @@ class ConsistencyMonitor:
 
     def scale_table(self) -> NDArray[np.float64]:
         """(bins,) variance scale per horizon bin (:meth:`variance_scale` of each bin): the
-        shadow gaps' scale, the NIS matching factor and, in a gap whose last fix was fused
-        while recent innovations showed the predictions wrong (``settle_s``), their factor."""
-        floor = self._nis_scale()
+        shadow gaps' scale and the NIS matching factor (read-only, computed once per change of
+        the evidence) and, in a gap whose last fix was fused while recent innovations showed
+        the predictions wrong (``settle_s``), their factor."""
+        if self._scale_table_value is None:
+            table = np.maximum(self._scales.scale_table(), self._nis_scale())
+            table.flags.writeable = False
+            self._scale_table_value = table
         if self._last_fix is not None and self._last_fix[0] <= self._settle_until:
-            floor = max(floor, self._settle_factor)
-        return np.maximum(self._scales.scale_table(), floor)
+            return np.maximum(self._scale_table_value, self._settle_factor)
+        return self._scale_table_value
 
     def _nis_scale(self) -> float:
         """The NIS matching factor when the windowed test says the innovations are too large,
         else 0 (no constraint: a small NIS says R is pessimistic, not that P may shrink)."""
-        if self._nis_scale_value is None:  # read at every row; _nis changes at fused fixes
-            test = windowed_nis_test(list(self._nis), self.params.nis_probability)
-            self._nis_scale_value = (nis_matching_scale(list(self._nis))
-                                     if test.mean > test.upper else 0.0)
-        return self._nis_scale_value
+        return self._nis_window()[1]
+
+    def _nis_window(self) -> tuple[float, float]:
+        """(the NIS matching factor ``mean NIS / 3`` of the window (:func:`nis_matching_scale`,
+        1 when empty), :meth:`_nis_scale`), from one mean over the window, computed once per
+        fused fix (the batch driver and the Tracker read them at every row)."""
+        if self._nis_window_value is None:
+            # windowed_nis_test's mean and upper limit (mocap() keeps only finite NIS values,
+            # so its finiteness filter has nothing to remove), nis_matching_scale's value
+            # from the same mean: float(values.mean() / 3)
+            samples = len(self._nis)
+            if samples == 0:
+                self._nis_window_value = (1.0, 0.0)
+            else:
+                mean = float(np.fromiter(self._nis, float, samples).mean())
+                upper = nis_interval(samples, self.params.nis_probability)[1]
+                self._nis_window_value = (mean / 3, mean / 3 if mean > upper else 0.0)
+        return self._nis_window_value
+
+    def _forget_derived(self, nis: bool = True) -> None:
+        """Drop the values derived from ``_scales`` and, with ``nis``, from ``_nis`` (after a
+        change of them)."""
+        if nis:
+            self._nis_window_value = None
+        self._scale_table_value = self._std_scale_value = self._bridging_value = None
 
     def fix_only(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """The position from the fixes alone, for when the IMU model is not trusted
@@ -894,12 +960,23 @@ class ConsistencyMonitor:
             covariance = covariance + np.outer(offset, offset) + rival_covariance
         return covariance
 
+    def has_rivals(self, t: float) -> bool:
+        """True when :meth:`cover_rivals` widens a covariance at t (s): a fix was gated since
+        the last fused one, or a fix fused after gated ones is younger than ``max_bridge_s``
+        (callers skip forming the point and covariance otherwise)."""
+        return self._gated_fix is not None or (
+            self._rival is not None
+            and t - self._rival[0] <= self._shadow.params.max_bridge_s)
+
     @property
     def bridging_allowed(self) -> bool:
         """False when the shadow gaps need a larger std scale than ``max_std_scale``, or, while
         fewer than ``minimum_shadow_gaps`` gaps are in, one above ``early_max_std_scale`` (thin
         evidence of a broken model: its scale is not yet known well enough to bridge on)."""
-        return bridging_allowed(self._std_scale(), self._scales.gaps, self.params)
+        if self._bridging_value is None:
+            self._bridging_value = bridging_allowed(self._std_scale(), self._scales.gaps,
+                                                    self.params)
+        return self._bridging_value
 
     def clock_offset(self) -> tuple[float, float] | None:
         """(offset s, 1-sigma s) of the IMU clock the shadow gaps show (positive: the IMU clock
@@ -920,7 +997,10 @@ class ConsistencyMonitor:
         return abs(offset) > self.params.clock_tolerance_s + self.params.clock_sigmas * std
 
     def _std_scale(self) -> float:
-        return math.sqrt(max(float(self._scales.scale_table().max()), self._nis_scale()))
+        if self._std_scale_value is None:
+            self._std_scale_value = math.sqrt(max(float(self._scales.scale_table().max()),
+                                                  self._nis_scale()))
+        return self._std_scale_value
 
     def snapshot(self) -> object:
         """A copy of the monitor's state; :meth:`restore` continues from it exactly."""
@@ -928,8 +1008,9 @@ class ConsistencyMonitor:
 
     def state_snapshot(self) -> object:
         """The part of :meth:`snapshot` besides the shadow filter: it changes only in
-        :meth:`mocap` and :meth:`restore` (and a cached scale at reads), so a caller may keep
-        one and pair it with later :meth:`shadow_snapshot` s until the next of those calls."""
+        :meth:`mocap` and :meth:`restore` (and the values derived from it, cached at reads),
+        so a caller may keep one and pair it with later :meth:`shadow_snapshot` s until the
+        next of those calls."""
         state = vars(self).copy()
         for key in _NOT_STATE:
             del state[key]
@@ -971,8 +1052,9 @@ _NOT_STATE: Final = ("_shadow", "params", "_gravity")
 def _copy_state(state: dict[str, object]) -> dict[str, object]:
     """A copy of the monitor's state dict that shares nothing mutable with it: deques and lists
     are copied; floats, tuples, the arrays the monitor stores (each built new and never changed
-    in place) and the :class:`HorizonScales` (replaced by a changed copy, never changed in
-    place: :meth:`ConsistencyMonitor._close`) are shared. It stands for ``copy.deepcopy``,
+    in place), the values it derives from them (cached, replaced, never changed in place) and
+    the :class:`HorizonScales` (replaced by a changed copy, never changed in place:
+    :meth:`ConsistencyMonitor._close`) are shared. It stands for ``copy.deepcopy``,
     which took about 0.7 ms per snapshot (the Tracker takes one at mocap rate); copying the
     scales' rows too took most of the 10-20 µs a snapshot still cost."""
     copied = state.copy()

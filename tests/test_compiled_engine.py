@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from kfusion.datasets import broad_excerpt
-from kfusion.kalman import run_filter
+from kfusion.kalman import run_filter, run_smoother
 from kfusion.recording import ImuSamples, MocapFrames, Recording, read_recording
 from kfusion.simulate import OcclusionSpec, simulate
 
@@ -489,3 +489,66 @@ def test_predict_with_shadow_equals_two_predictions() -> None:
     other = CompiledFusion(info.imu_to_body, info.gravity, KalmanParameters.from_profiles("um7"))
     with pytest.raises(ValueError, match="shadow: expected a CompiledFusion built with the same"):
         paired.predict_valid_with(other, 100.0, 0.0, 0.0, 9.8, 0.0, 0.0, 0.0)
+
+
+def broken_clock() -> Recording:
+    """An undeclared 40 ms IMU clock offset: the monitor's shadow gaps refuse the model, fixes
+    are gated (the monitor then reads the filter's estimate before each frame) and
+    re-acquired."""
+    recording = simulated()
+    imu = recording.imu
+    return dataclasses.replace(recording, imu=ImuSamples(
+        t=imu.t + 0.04, accelerometer=imu.accelerometer, gyroscope=imu.gyroscope))
+
+
+MONITOR_CASES = {**CASES, "broken_clock": (broken_clock, {})}
+
+
+@pytest.mark.parametrize("case", list(MONITOR_CASES))
+def test_two_pass_monitor_equals_event_by_event(case: str) -> None:
+    """With the consistency monitor, the compiled engine's two passes (the whole-loop kernel,
+    then the monitor's bookkeeping: kfusion.kalman.monitored) give the bits of the
+    event-by-event run (CompiledFusion for the filter and the shadow), the Tracker's."""
+    build, overrides = MONITOR_CASES[case]
+    recording = build()
+    fast = run_filter(recording, engine="compiled", **overrides)
+    reference = run_filter(recording, engine="compiled", stepwise=True, **overrides)
+    for name in ("position", "std", "status", "time_since_fix"):
+        np.testing.assert_array_equal(getattr(fast.result, name),
+                                      getattr(reference.result, name), err_msg=name)
+    for name in ("x", "P", "output_matrix", "output_offset", "outcome", "nis",
+                 "variance_scale"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(reference, name),
+                                      err_msg=name)
+    assert fast.counters == reference.counters
+    assert repr(fast.monitor) == repr(reference.monitor)  # NaN fields compare by text
+
+
+def test_the_monitor_cases_reach_refusal_and_gated_fixes() -> None:
+    run = run_filter(broken_clock(), engine="compiled")
+    assert run.monitor is not None and not run.monitor.bridging_allowed
+    assert run.counters["gated"] >= 1 and (run.result.status == "lost").any()
+
+
+@pytest.mark.parametrize("case", ["broken_clock", "long_gaps", "broad_excerpt"])
+def test_two_pass_smoother_forward_pass_equals_event_by_event(case: str) -> None:
+    """The smoother's forward pass with the monitor in two passes gives the bits of the
+    event-by-event one, and so does its backward pass from the states the two passes keep
+    (``long_gaps``: 15 s at 100 Hz, more than SAVE_EVERY rows)."""
+    if case == "long_gaps":
+        recording = simulate("arm_lift", seed=8, duration=15.0,
+                             occlusions=OcclusionSpec(gap_range=(0.15, 0.6),
+                                                      spacing=1.0)).recording
+        assert len(recording.mocap) > compiled.SAVE_EVERY
+    else:
+        recording = MONITOR_CASES[case][0]()
+    fast = run_smoother(recording, engine="compiled")
+    reference = run_smoother(recording, engine="compiled", stepwise=True)
+    for result, expected in ((fast.result, reference.result),
+                             (fast.filtered, reference.filtered)):
+        for name in ("position", "std", "status", "time_since_fix"):
+            np.testing.assert_array_equal(getattr(result, name), getattr(expected, name),
+                                          err_msg=name)
+    np.testing.assert_array_equal(fast.x, reference.x)
+    np.testing.assert_array_equal(fast.P, reference.P)
+    assert repr(fast.monitor) == repr(reference.monitor)

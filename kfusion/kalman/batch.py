@@ -9,6 +9,7 @@ estimate right after that row was processed.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, cast
@@ -157,9 +158,28 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
     while events and events[-1][1] == IMU_STREAM:
         events.pop()
     fast = type(fusion) is KalmanFusion  # its validated internals; other engines: public API
+    # the compiled engine's checked entry (CompiledFusion.predict_valid), for it and its shadow
+    predict_valid = getattr(fusion, "predict_valid", None) if not fast else None
+    shadow_valid = monitor is not None and monitor.takes_checked_samples
+    latest = -math.inf  # the latest finite stamp fed: no filter holds a later one
     for t, stream, index in events:
         if stream == IMU_STREAM:
             stamp = stamps[index]
+            if predict_valid is not None and finite[index] and stamp > latest:
+                # what predict() checks (finite, after the held stamp) holds: its kernel call
+                latest = stamp
+                a0, a1, a2 = accelerometer[index]
+                g0, g1, g2 = gyroscope[index]
+                predict_valid(stamp, a0, a1, a2, g0, g1, g2)
+                if shadow_valid and monitor is not None:
+                    shadow = monitor.gap_shadow  # the compiled shadow's checked entry too
+                    if shadow is not None:
+                        shadow.predict_valid(stamp, a0, a1, a2, g0, g1, g2)  # type: ignore[attr-defined]
+                elif monitor is not None:
+                    monitor.imu(stamp, accelerometer[index], gyroscope[index])
+                continue
+            if finite[index]:
+                latest = max(latest, stamp)
             if fast and finite[index] and (fusion._imu_stamp is None
                                            or stamp > fusion._imu_stamp):
                 f, omega = accelerometer[index], gyroscope[index]
@@ -387,28 +407,38 @@ class _RowRecorder:
         self.outcome[row] = outcome.kind
         self.nis[row] = outcome.nis
         self.dead_reckoned[row] = outcome.t <= fusion.dead_reckoning_until()
-        if self.monitor is not None:
-            self.allowed[row] = self.monitor.bridging_allowed
-            if not outcome.accepted:
-                self.scale_tables[row] = self.monitor.scale_table()
-            fix = None if self.allowed[row] else self.monitor.fix_only(outcome.t)
-            if fix is not None:
-                covariance = self.monitor.cover_rivals(outcome.t, fix[0], fix[1])
-                self.fix_position[row] = fix[0]
-                self.fix_variance[row] = np.diag(covariance)
-        if fusion.initialised:
+        initialised = fusion.initialised
+        if initialised:
             self.x[row] = fusion._kf.x
             self.P[row] = fusion._kf.P
             H, offset = fusion.output_map()
             self.output_matrix[row] = H
             self.output_offset[row] = offset
-            if self.monitor is not None:
-                if self.monitor.fix_scale(outcome.t) > 1.0:  # the covariance only then
-                    at_fix = self.monitor.at_fix(outcome.t, output_covariance(H, fusion._kf.P))
-                    self.at_fix_variance[row] = np.diag(at_fix)
-                widened = self.monitor.cover_rivals(outcome.t,
-                                                    output_point(H, fusion._kf.x, offset),
-                                                    np.zeros((3, 3)))
+        if self.monitor is not None:
+            self.record_monitor(row, outcome, initialised)
+
+    def record_monitor(self, row: int, outcome: UpdateOutcome, initialised: bool) -> None:
+        """The monitor's part of a row (its reads only), with the row's state, covariance and
+        output map already recorded (read from them where ``initialised``)."""
+        monitor = self.monitor
+        assert monitor is not None
+        self.allowed[row] = monitor.bridging_allowed
+        if not outcome.accepted:
+            self.scale_tables[row] = monitor.scale_table()
+        fix = None if self.allowed[row] else monitor.fix_only(outcome.t)
+        if fix is not None:
+            covariance = monitor.cover_rivals(outcome.t, fix[0], fix[1])
+            self.fix_position[row] = fix[0]
+            self.fix_variance[row] = np.diag(covariance)
+        if initialised:
+            H = self.output_matrix[row]
+            if monitor.fix_scale(outcome.t) > 1.0:  # the covariance only then
+                at_fix = monitor.at_fix(outcome.t, output_covariance(H, self.P[row]))
+                self.at_fix_variance[row] = np.diag(at_fix)
+            if monitor.has_rivals(outcome.t):  # else the row's zeros stand
+                widened = monitor.cover_rivals(
+                    outcome.t, output_point(H, self.x[row], self.output_offset[row]),
+                    np.zeros((3, 3)))
                 self.rival_variance[row] = np.diag(widened)
 
     @classmethod
@@ -471,6 +501,23 @@ def compiled_rows(recording: Recording, fusion: KalmanFusion, *, smoothing: bool
     return _RowRecorder.from_kernel(fusion, run), run
 
 
+def monitored_kernel_rows(recording: Recording, params: KalmanParameters,
+                          monitor: MonitorParameters
+                          ) -> tuple[_RowRecorder, ConsistencyMonitor, Any] | None:
+    """The per-row arrays of :func:`process_recording` with the consistency monitor on the
+    compiled engine, in two passes (:func:`kfusion.kalman.monitored.monitored_rows`: the
+    whole-loop kernel, then the monitor's bookkeeping, the same bits), the monitor and the
+    smoother's :class:`kfusion.kalman.compiled.Replay`. None when the kernel cannot run the
+    recording (the caller runs it event by event)."""
+    from kfusion.kalman.monitored import monitored_rows  # numba loads here
+
+    inputs = kernel_inputs(recording, params.imu_latency_s)
+    if inputs is None:
+        return None
+    return monitored_rows(recording, params, monitor, make_fusion(recording, params), inputs,
+                          _RowRecorder)
+
+
 def kernel_inputs(recording: Recording, latency_s: float) -> tuple[NDArray[Any], ...] | None:
     """The recording on the mocap clock as the compiled kernels' arguments: IMU t, specific
     force, rate, mocap t, position, quaternion, visible, and the merged events (``stream``,
@@ -503,16 +550,18 @@ def compiled_points(recorder: _RowRecorder, x: NDArray[np.float64] | None = None
 def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
                monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008 (frozen)
                measurement: str = BODY, engine: str = DEFAULT_ENGINE,
-               **overrides: Any) -> FilterRun:
+               stepwise: bool = False, **overrides: Any) -> FilterRun:
     """Run the filter over ``recording`` and keep its per-row states and outcomes.
 
     ``monitor``: the consistency monitor's settings (:mod:`kfusion.monitor`); None runs the
     filter alone (the bound is then the profile's). ``measurement``: ``body`` or ``markers``
     (:func:`process_recording`). ``engine``: ``compiled`` (the numba whole-loop kernel,
-    :mod:`kfusion.kalman.compiled`) or ``filterpy`` (:class:`KalmanFusion` step by step). The
-    consistency monitor watches a filter event by event, so with a monitor the compiled engine
-    runs step by step (:class:`kfusion.kalman.compiled_fusion.CompiledFusion`, for the filter
-    and the monitor's shadow filter). Marker-level fusion runs on filterpy whatever the engine
+    :mod:`kfusion.kalman.compiled`) or ``filterpy`` (:class:`KalmanFusion` step by step). With
+    a monitor the compiled engine runs in two passes (:func:`monitored_kernel_rows`: the
+    kernel, then the monitor's bookkeeping with its shadow gaps in the kernel), or, with
+    ``stepwise``, event by event (:class:`kfusion.kalman.compiled_fusion.CompiledFusion` for
+    the filter and the monitor's shadow filter: the reference the two passes equal bit for
+    bit). Marker-level fusion runs on filterpy whatever the engine
     (:func:`measurement_engine`)."""
     check_engine(engine)
     engine = measurement_engine(engine, measurement)
@@ -522,8 +571,12 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
     # watches the filter event by event), the compiled step functions (CompiledFusion)
     fusion = make_fusion(recording, params, "filterpy" if watcher is None else engine)
     rows = compiled_rows(recording, fusion) if engine == "compiled" and watcher is None else None
+    monitored = (monitored_kernel_rows(recording, params, watcher.params)
+                 if engine == "compiled" and watcher is not None and not stepwise else None)
     if rows is not None:
         recorder = rows[0]
+    elif monitored is not None:
+        recorder, watcher, _ = monitored
     else:
         recorder = _RowRecorder(fusion, len(recording.mocap), watcher)
         process_recording(recording, fusion, recorder.record, watcher, measurement)

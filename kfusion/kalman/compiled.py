@@ -1455,18 +1455,23 @@ class Replay:
         self.config = config
         self.first_state = first_state
         self.saved_states = saved_states
+        # the event after each saved state's row (run_kernel with save_every)
+        self.saved_events = np.zeros(0, dtype=np.int64)
 
 
 def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
                gyroscope: NDArray[np.float64], mocap_t: NDArray[np.float64],
                mocap_position: NDArray[np.float64], mocap_quaternion: NDArray[np.float64],
                visible: NDArray[np.bool_], stream: NDArray[np.int64], index: NDArray[np.int64],
-               config: NDArray[np.float64], size: int, smoothing: bool = False) -> KernelRun:
+               config: NDArray[np.float64], size: int, smoothing: bool = False,
+               save_every: int = 0) -> KernelRun:
     """Run :func:`filter_events` over merged events (``stream``, ``index`` (e,) each:
     :func:`kfusion.kalman.events.merge_order`). Shapes: IMU (n,), (n, 3), (n, 3); mocap (m,),
     (m, 3), (m, 4), (m,); ``config`` from :func:`pack_config`; n states ``size``. With
     ``smoothing`` the run keeps what :func:`smooth_in_place` needs (``replay``: the inputs and
-    the states saved every :data:`SAVE_EVERY` rows)."""
+    the states saved every :data:`SAVE_EVERY` rows); without it, ``save_every`` > 0 keeps the
+    states saved every ``save_every`` rows the same way (``replay`` too: :class:`Checkpoints`
+    continues from them)."""
     rows = len(mocap_t)
     inputs = kernel_inputs(imu_t, accelerometer, gyroscope, mocap_t, mocap_position,
                            mocap_quaternion, visible, stream, index)
@@ -1481,8 +1486,8 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     no_rows = np.zeros((0, size, size))
     first_state = initial_state(size)
     state = first_state.copy()
-    save_every = SAVE_EVERY if smoothing else 0
-    saved = rows // SAVE_EVERY if smoothing else 0
+    save_every = SAVE_EVERY if smoothing else save_every
+    saved = rows // save_every if save_every > 0 else 0
     saved_states = np.zeros((saved, len(state)))
     saved_events = np.zeros(saved, dtype=np.int64)
     failed = filter_events(  # type: ignore[call-arg]
@@ -1492,9 +1497,64 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     run = KernelRun(out_x, out_P, out_H, out_offset, _OUTCOME_LOOKUP[out_outcome], out_nis,
                     out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(), strict=True)),
                     int(failed))
-    if smoothing:
+    if save_every > 0:
         run.replay = Replay(inputs, config, first_state, saved_states)
+        run.replay.saved_events = saved_events
     return run
+
+
+class Checkpoints:
+    """The filter's packed state after any event of a whole-loop run, recomputed from the
+    states it saved (:func:`run_kernel` with ``save_every``): :func:`filter_events` again from
+    the last saved state before that event (the same arithmetic: the same bits), and the same
+    loop over a range of events with every mocap frame occluded (``hidden``: the consistency
+    monitor's shadow filter, which runs on the IMU alone)."""
+
+    def __init__(self, replay: Replay, size: int, save_every: int) -> None:
+        self.replay = replay
+        self.size = size
+        self.save_every = save_every
+        self.inputs = replay.inputs
+        self.hidden = np.zeros(len(self.inputs[9]), dtype=bool)
+        self.counters = np.zeros(len(COUNTER_INDEX), dtype=np.int64)  # scratch
+
+    def state_before(self, event: int) -> NDArray[np.float64]:
+        """The packed state after events 0 .. ``event`` - 1 (a new array)."""
+        saved_events = self.replay.saved_events
+        last = int(np.searchsorted(saved_events, event, side="right")) - 1
+        if last < 0:
+            state, begin, first_row = self.replay.first_state.copy(), 0, 0
+        else:
+            state = self.replay.saved_states[last].copy()
+            begin, first_row = int(saved_events[last]), (last + 1) * self.save_every
+        self.run(state, begin, event, first_row, self.save_every + 1, hidden=False)
+        return state
+
+    def run(self, state: NDArray[np.float64], begin: int, end: int, first_row: int,
+            rows: int, hidden: bool) -> tuple[NDArray[np.float64], ...]:
+        """:func:`filter_events` over events ``begin`` .. ``end`` - 1 from the packed ``state``
+        (in place), the frames from ``first_row`` on, at most ``rows`` of them; occluded with
+        ``hidden``. Returns the rows' x (rows, n), P (rows, n, n), H (rows, 3, n) and offset
+        (rows, 3) (NaN x where not initialised). RuntimeError where the kernel stops (the
+        whole-loop run did not: these are its events)."""
+        n = self.size
+        out_x = np.full((rows, n), np.nan)
+        out_P = np.full((rows, n, n), np.nan)
+        out_H = np.zeros((rows, 3, n))
+        out_offset = np.zeros((rows, 3))
+        no_rows = np.zeros((0, n, n))
+        inputs = self.inputs
+        visible = self.hidden if hidden else inputs[9]
+        failed = filter_events(  # type: ignore[call-arg]
+            inputs[0], inputs[1], begin, end, *inputs[2:9], visible, self.replay.config,
+            state, self.counters, first_row, out_x, out_P, out_H, out_offset,
+            np.full(rows, -1, dtype=np.int64), np.full(rows, np.nan),
+            np.zeros(rows, dtype=bool), np.zeros((0, n)), no_rows, no_rows, 0,
+            np.zeros((0, len(state))), np.zeros(0, dtype=np.int64))
+        if failed >= 0:
+            raise RuntimeError(f"replay of events {begin}..{end}: the kernel stopped at "
+                               f"event {failed}, which the whole-loop run passed")
+        return out_x, out_P, out_H, out_offset
 
 
 def smooth_in_place(replay: Replay, x: NDArray[np.float64], P: NDArray[np.float64],

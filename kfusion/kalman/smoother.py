@@ -58,6 +58,7 @@ from kfusion.kalman.batch import (
     make_monitor,
     marker_inputs,
     measurement_engine,
+    monitored_kernel_rows,
     point_estimates,
     position_covariances,
     process_recording,
@@ -282,9 +283,12 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
 
 
 def compiled_steps(recording: Recording, params: KalmanParameters,
-                   watcher: ConsistencyMonitor | None
+                   watcher: ConsistencyMonitor | None, *, stepwise: bool = False
                    ) -> tuple[_RowRecorder, Replay] | None:
-    """The smoother's forward pass on the compiled engine step by step
+    """The smoother's forward pass on the compiled engine with the consistency monitor: in two
+    passes (:func:`kfusion.kalman.batch.monitored_kernel_rows`, the recorder's ``monitor`` is
+    then the two-pass run's), or, with ``stepwise`` or where the kernel cannot run it, step by
+    step
     (:class:`kfusion.kalman.compiled_fusion.CompiledFusion` fed by :func:`kfusion.kalman.batch.
     process_recording`, watched by the consistency monitor ``watcher``), keeping each row's
     filtered state and the packed state after every :data:`~kfusion.kalman.compiled.
@@ -295,6 +299,10 @@ def compiled_steps(recording: Recording, params: KalmanParameters,
     filterpy engine, whose error names it)."""
     from kfusion.kalman import compiled
 
+    if watcher is not None and not stepwise:
+        monitored = monitored_kernel_rows(recording, params, watcher.params)
+        if monitored is not None:
+            return monitored[0], monitored[2]
     inputs = kernel_inputs(recording, params.imu_latency_s)
     if inputs is None:
         return None
@@ -319,7 +327,7 @@ def compiled_steps(recording: Recording, params: KalmanParameters,
 def run_smoother(recording: Recording, params: KalmanParameters | None = None, *,
                  monitor: MonitorParameters | None = MonitorParameters(),  # noqa: B008 (frozen)
                  measurement: str = BODY, engine: str = DEFAULT_ENGINE,
-                 **overrides: Any) -> SmootherRun:
+                 stepwise: bool = False, **overrides: Any) -> SmootherRun:
     """Forward :class:`KalmanFusion` pass storing rows, then the RTS backward pass; with a
     ``monitor`` (default), the forward filter's online monitor and the hold-out check of the
     smoothed bound (module docstring). ``measurement``: ``body`` or ``markers``
@@ -332,7 +340,9 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     transitions block by block instead of keeping them) when there is no monitor (which
     watches a filter event by event);
     ``filterpy`` runs :class:`KalmanFusion` and the numpy backward pass; marker-level fusion
-    runs on filterpy (:func:`kfusion.kalman.batch.measurement_engine`)."""
+    runs on filterpy (:func:`kfusion.kalman.batch.measurement_engine`). With a monitor the
+    compiled forward pass runs in two passes (:func:`compiled_steps`), or event by event with
+    ``stepwise`` (the reference the two passes equal bit for bit)."""
     check_engine(engine)
     engine = measurement_engine(engine, measurement)
     params = resolve_parameters(recording, params, overrides)
@@ -345,7 +355,9 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         rows = None if kernel is None else (kernel[0], kernel[1].replay)
     elif engine == "compiled":
         # the monitor watches the filter event by event: the compiled filter step by step
-        rows = compiled_steps(recording, params, watcher)
+        rows = compiled_steps(recording, params, watcher, stepwise=stepwise)
+        if rows is not None:
+            watcher = rows[0].monitor  # the two-pass run's monitor, or watcher itself
     replay = None
     if rows is not None:
         recorder, replay = rows
