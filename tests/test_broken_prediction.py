@@ -57,6 +57,20 @@ def test_fix_covariance_under_an_innovation_factor_by_hand_and_by_monte_carlo():
     assert fix_covariance_under_innovation_factor(posterior, noise_variance, 0.8) is posterior
 
 
+def _read_at_frames(tracker: Tracker, recording, until_s: float = np.inf):
+    """Push ``recording`` in time order; yield (frame index, ``estimate`` at the frame's time)
+    after each frame up to ``until_s`` s."""
+    imu, mocap = recording.imu, recording.mocap
+    for _, stream, index in Streams.of(recording).events():
+        if stream == 0:
+            tracker.push_imu(imu.t[index], imu.accelerometer[index], imu.gyroscope[index])
+            continue
+        if mocap.t[index] > until_s:
+            return
+        tracker.push_mocap(mocap.t[index], mocap.position[index], mocap.quaternion[index])
+        yield index, tracker.estimate(mocap.t[index])
+
+
 def test_fix_covariance_limits():
     noise_variance = 1e-6
     posterior = np.diag([1e-6, 0.5e-6, 1e-9])  # fix dominates, half-half, prediction dominates
@@ -125,14 +139,7 @@ def test_fixes_while_the_innovations_are_too_large_are_widened_to_cover():
     info = recording.info
     tracker = Tracker(info.imu_to_body, info.gravity, lever_arm=info.lever_arm)
     wrong = scored = 0
-    for _, stream, index in Streams.of(recording).events():
-        if stream == 0:
-            tracker.push_imu(recording.imu.t[index], recording.imu.accelerometer[index],
-                             recording.imu.gyroscope[index])
-            continue
-        t = recording.mocap.t[index]
-        tracker.push_mocap(t, recording.mocap.position[index], recording.mocap.quaternion[index])
-        estimate = tracker.estimate(t)
+    for index, estimate in _read_at_frames(tracker, recording):
         report = tracker.consistency
         if estimate.status == "tracked" and report is not None \
                 and report.nis.mean > report.nis.upper:
@@ -224,16 +231,7 @@ def test_thin_evidence_stops_the_bridging_earlier():
     truth = np.asarray(simulation.truth.position)
     tracker = Tracker.from_recording_info(recording.info, options={"clock_window_s": 0.0})
     wrong = scored = 0
-    for _, stream, index in Streams.of(recording).events():
-        if stream == 0:
-            tracker.push_imu(recording.imu.t[index], recording.imu.accelerometer[index],
-                             recording.imu.gyroscope[index])
-            continue
-        t = recording.mocap.t[index]
-        if t > 6.0:
-            break
-        tracker.push_mocap(t, recording.mocap.position[index], recording.mocap.quaternion[index])
-        estimate = tracker.estimate(t)
+    for index, estimate in _read_at_frames(tracker, recording, until_s=6.0):
         scored += 1
         wrong += estimate.status != "lost" and \
             np.linalg.norm(estimate.position - truth[index]) > estimate.bound(0.99)

@@ -54,21 +54,24 @@ def test_a_window_the_motion_cannot_time_is_undecided():
     assert time_window(imu[:10], frames[:10], streams.recording.info.imu_to_body, 5.0) is None
 
 
+def _push(tracker: Tracker, recording, stream: int, index: int):
+    """Push one sample (stream 0: IMU, 1: mocap); after a frame, the estimate at its time."""
+    imu, mocap = recording.imu, recording.mocap
+    if stream == 0:
+        tracker.push_imu(imu.t[index], imu.accelerometer[index], imu.gyroscope[index])
+        return None
+    tracker.push_mocap(mocap.t[index], mocap.position[index], mocap.quaternion[index])
+    return tracker.estimate(mocap.t[index])
+
+
 def _run(streams: Streams, **options):
     """Push in arrival order; (status, position, covariance) read at each frame's time, and
     the tracker."""
     tracker = Tracker.from_recording_info(streams.recording.info, options=options)
-    recording = streams.recording
     readings = []
     for _, stream, index in streams.events():
-        if stream == 0:
-            tracker.push_imu(recording.imu.t[index], recording.imu.accelerometer[index],
-                             recording.imu.gyroscope[index])
-        else:
-            t = recording.mocap.t[index]
-            tracker.push_mocap(t, recording.mocap.position[index],
-                               recording.mocap.quaternion[index])
-            estimate = tracker.estimate(t)
+        estimate = _push(tracker, streams.recording, stream, index)
+        if estimate is not None:
             readings.append((estimate.status, estimate.position, estimate.covariance))
     return readings, tracker
 
@@ -131,14 +134,8 @@ def test_a_snapshot_keeps_a_pending_timing():
     tracker = Tracker.from_recording_info(recording.info)
     readings = []
     for number, (_, stream, index) in enumerate(events):
-        if stream == 0:
-            tracker.push_imu(recording.imu.t[index], recording.imu.accelerometer[index],
-                             recording.imu.gyroscope[index])
-        else:
-            t = recording.mocap.t[index]
-            tracker.push_mocap(t, recording.mocap.position[index],
-                               recording.mocap.quaternion[index])
-            estimate = tracker.estimate(t)
+        estimate = _push(tracker, recording, stream, index)
+        if estimate is not None:
             readings.append((estimate.status, estimate.position))
         if 5.2 < recording.mocap.t[-1] * number / len(events) and "resumed" not in locals():
             # 5.2 s in: the first timing (started at 5 s) is pending; continue in a new tracker
