@@ -979,6 +979,7 @@ class Tracker:
         self._frame_period = math.inf
         # IMU samples up to this long past the next frame's expected time wait for it (s)
         self._hold_s = options.checkpoint_interval_s if options.max_delay_s > 0 else -math.inf
+        self._clock_watch: OnlineClockCheck  # the online clock check (kfusion.online_clock)
         self._start_streams(keep_counters=False)
 
     # ---- construction helpers ---------------------------------------------------------------
@@ -1430,8 +1431,11 @@ class Tracker:
         self._newest = None
         self._imu_newest = self._mocap_newest = -math.inf
         self._frame_period = math.inf
-        self._clock_watch = OnlineClockCheck(self._imu_to_body, self.options.clock_window_s
-                                       if self.method == "kalman" else 0.0)
+        if keep_counters:  # a reset or a rebase: the clock's verdict stays
+            self._clock_watch.forget_data()
+        else:
+            self._clock_watch = OnlineClockCheck(self._imu_to_body, self.options.clock_window_s
+                                                 if self.method == "kalman" else 0.0)
         if self.options.max_delay_s > 0:
             self._checkpoints.append(_Checkpoint((-math.inf, -1), self._estimator.snapshot(),
                                                  self._book.copy()))

@@ -193,3 +193,83 @@ def test_pooled_timing_by_hand():
     assert "about 4.6 ms behind the mocap" in pooled.problem
     # disjoint windows (overlap 1): no inflation
     assert pooled_timing((one, two), 1.0).std_s == pytest.approx(np.sqrt(1.0 / 1.25e6))
+
+
+def test_a_worker_that_cannot_run_is_replaced_by_the_caller(monkeypatch):
+    # after interpreter shutdown (a tracker in a thread outliving the main one, or in an
+    # atexit handler) the executor refuses new work: the timing is computed when due instead
+    from concurrent.futures import ThreadPoolExecutor
+
+    streams = faults.imu_clock_offset(_simulated(), -0.010)
+    expected, _ = _run(streams)
+    stopped = ThreadPoolExecutor(max_workers=1)
+    stopped.shutdown()
+    monkeypatch.setattr(online_clock, "_worker", lambda: stopped)
+    readings, tracker = _run(streams)
+    assert "behind the mocap" in tracker.health.clock_problem
+    assert [r[0] for r in readings] == [r[0] for r in expected]
+
+
+def test_a_failing_timing_leaves_the_verdict_and_the_tracker_running(monkeypatch):
+    def broken(*args, **kwargs):
+        raise ZeroDivisionError("a bug in a timing")
+
+    monkeypatch.setattr(online_clock, "time_window", broken)
+    readings, tracker = _run(faults.imu_clock_offset(_simulated(), -0.010))
+    assert tracker.health.clock_problem == "" and np.isnan(tracker.health.clock_offset_s)
+    assert len(readings) > 1000
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs os.fork")
+def test_a_forked_child_keeps_tracking():
+    # the child inherits the worker's executor but not its thread: waiting on it hung
+    import os
+
+    streams = faults.imu_clock_offset(_simulated(), -0.010)
+    events = streams.events()
+    tracker = Tracker.from_recording_info(streams.recording.info)
+    half = len(events) // 3
+    for _, stream, index in events[:half]:
+        _push(tracker, streams.recording, stream, index)
+    read, write = os.pipe()
+    child = os.fork()
+    if child == 0:  # the child: finish the run, report the verdict, leave at once
+        code = 1
+        try:
+            for _, stream, index in events[half:]:
+                _push(tracker, streams.recording, stream, index)
+            code = 0 if "behind the mocap" in tracker.health.clock_problem else 2
+        finally:
+            os.write(write, bytes([code]))
+            os._exit(0)
+    os.close(write)
+    import signal
+    import time as clock
+
+    deadline = clock.monotonic() + 120.0
+    while os.waitpid(child, os.WNOHANG) == (0, 0):
+        if clock.monotonic() > deadline:  # hung (waiting on the parent's worker): fail
+            os.kill(child, signal.SIGKILL)
+            os.waitpid(child, 0)
+            pytest.fail("the forked child's tracker hung")
+        clock.sleep(0.05)
+    assert os.read(read, 1) == b"\x00"
+    os.close(read)
+
+
+def test_imu_samples_without_mocap_are_not_kept_for_ever():
+    tracker = Tracker([1, 0, 0, 0], [0, 0, -9.81])
+    tracker.push_mocap(0.0, [0.0, 0.0, 0.0], [1, 0, 0, 0])
+    for k in range(1, 6001):  # 30 s of IMU at 200 Hz, no frame
+        tracker.push_imu(k / 200.0, [0.0, 0.0, 9.81], [0.0, 0.0, 0.0])
+    kept = tracker._clock_watch.state()[0]
+    assert len(kept) <= 200 * 10.0 + 1  # at most window + two periods of samples
+
+
+def test_a_reset_keeps_a_refused_clock():
+    streams = faults.imu_clock_offset(_simulated(), -0.020)
+    _, tracker = _run(streams)
+    assert tracker.health.clock_problem
+    tracker.reset()
+    assert tracker.health.clock_problem  # the sensors' clocks did not change
+    assert tracker.consistency is None or not tracker.consistency.bridging_allowed
