@@ -32,8 +32,9 @@ windows up to 7.5 ms in an adversarial review's clean runs); on the seven BROAD 
 which refused a right clock before the systematic term) and no pooled verdict refuses. Known
 limits: a mount error inside ``check``'s 5 deg tolerance (3 deg on a simulated circle) reads as
 5-8 ms and is refused as a clock (fail-safe, but the wrong cause); marker frames
-(:meth:`kfusion.tracker.Tracker.push_markers`) carry no rigid-body orientation and are not
-timed; one worker thread serves every tracker of a process (a fit costs 30-130 ms of CPU per
+(:meth:`kfusion.tracker.Tracker.push_markers`) are timed on their Kabsch pose
+(:func:`kfusion.kalman.markers.marker_pose`; a frame with fewer than 3 fitting markers counts
+as not seen); one worker thread serves every tracker of a process (a fit costs 30-130 ms of CPU per
 5 s window; about 30 live trackers at 500 Hz saturate it).
 
 Determinism. A fit costs tens of ms, so it runs in a worker thread, off the push path. Its

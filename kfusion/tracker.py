@@ -1230,7 +1230,23 @@ class Tracker:
         stream.last_t, stream.last_values = t, values
         stream.accepted += 1
         self._watch.mocap(t)
+        if self._clock_watch.enabled:  # timed on the markers' Kabsch pose, as a fused frame
+            self._clock_watch.mocap(t, *self._marker_frame_pose(observed), reason in FIXED)
         return PushOutcome(reason in FIXED, reason)
+
+    def _marker_frame_pose(self, observed: NDArray[np.float64]
+                           ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The rigid-body pose (origin (3,) m, quaternion (4,) [w, x, y, z]) of a marker frame
+        (:func:`kfusion.kalman.markers.marker_pose`: 3 or more visible markers that fit the
+        cluster), NaN when it has none."""
+        from kfusion.kalman.markers import marker_pose
+
+        assert self._marker_body is not None
+        seen = np.isfinite(observed).all(axis=1)
+        pose = marker_pose(observed[seen], self._marker_body[seen]) if seen.sum() >= 3 else None
+        if pose is None:
+            return np.full(3, np.nan), np.full(4, np.nan)
+        return pose
 
     @_locked
     def estimate(self, t: float | None = None) -> Estimate:
