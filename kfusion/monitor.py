@@ -247,12 +247,19 @@ def fix_covariance_under_scale(covariance: ArrayLike, noise_variance: float, sca
     if not math.isfinite(scale):
         return np.full((3, 3), math.inf)
     correction = P - P @ P / noise_variance
-    correction = 0.5 * (correction + correction.T)
-    if not clearly_positive_definite(correction):  # else eigh would keep it as it is
-        values, vectors = np.linalg.eigh(correction)
-        if values.min() < 0.0:
-            correction = (vectors * np.maximum(values, 0.0)) @ vectors.T
-    return P + (scale - 1.0) * correction
+    return P + (scale - 1.0) * positive_part(0.5 * (correction + correction.T))
+
+
+def positive_part(matrix: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The symmetric (3, 3) ``matrix`` with its negative eigenvalues set to 0,
+    ``V max(Lambda, 0) V^T``; the matrix itself when it has none (the eigendecomposition is
+    skipped when :func:`clearly_positive_definite` shows that)."""
+    if clearly_positive_definite(matrix):
+        return matrix
+    values, vectors = np.linalg.eigh(matrix)
+    if values.min() < 0.0:
+        return (vectors * np.maximum(values, 0.0)) @ vectors.T
+    return matrix
 
 
 def clearly_positive_definite(matrix: NDArray[np.float64], margin: float = 1e-8) -> bool:
@@ -359,11 +366,7 @@ def fix_covariance_under_innovation_factor(covariance: ArrayLike, noise_variance
         return P
     if not math.isfinite(factor):
         return np.full((3, 3), math.inf)
-    excess = noise_variance * np.eye(3) - 0.5 * (P + P.T)
-    values, vectors = np.linalg.eigh(excess)
-    if values.min() < 0.0:
-        excess = (vectors * np.maximum(values, 0.0)) @ vectors.T
-    return P + (factor - 1.0) * excess
+    return P + (factor - 1.0) * positive_part(noise_variance * np.eye(3) - 0.5 * (P + P.T))
 
 
 def scale_beyond_evidence(scale: ArrayLike, horizon_s: ArrayLike, edges_s: tuple[float, ...]
@@ -753,8 +756,7 @@ class ConsistencyMonitor:
         if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
             self._nis.append(outcome.nis)
             self._forget_derived()
-            self._recent_nis = deque(self._recent_nis, maxlen=self.params.recent_fixes)
-            self._recent_nis.append(outcome.nis)
+            self._recent_nis.append(outcome.nis)  # snapshots copy it (_copy_state)
             recent = sum(self._recent_nis)
             dof = 3 * len(self._recent_nis)
             if len(self._recent_nis) == self.params.recent_fixes and \
@@ -833,7 +835,11 @@ class ConsistencyMonitor:
     def variance_scale(self, horizon_s: float) -> float:
         """Factor for the position covariance at ``horizon_s`` s since the last fix: the shadow
         gaps' scale for that horizon and the NIS matching factor, whichever is larger."""
-        table = self.scale_table()
+        return self._binned(self.scale_table(), horizon_s)
+
+    def _binned(self, table: NDArray[np.float64], horizon_s: float) -> float:
+        """``table``'s (bins,) scale at ``horizon_s`` s (:func:`horizon_bin`), at least 1 beyond
+        the last bin (:func:`scale_beyond_evidence`)."""
         edges = self.params.horizon_edges_s
         return float(scale_beyond_evidence(table[horizon_bin(horizon_s, edges)], horizon_s,
                                            edges))
@@ -927,10 +933,7 @@ class ConsistencyMonitor:
         R)."""
         if self._last_fix is None or t != self._last_fix[0] or math.isinf(self._fix_horizon):
             return 1.0, 1.0
-        bins = self._scales.scale_table()
-        edges = self.params.horizon_edges_s
-        shadow = float(scale_beyond_evidence(bins[horizon_bin(self._fix_horizon, edges)],
-                                             self._fix_horizon, edges))
+        shadow = self._binned(self._scales.scale_table(), self._fix_horizon)
         factor = max(1.0, self._nis_scale())
         if t <= self._settle_until:
             factor = max(factor, self._settle_factor)

@@ -204,8 +204,7 @@ class OnlineClockCheck:
         self.window_s = float(window_s)
         self._imu: deque[tuple[float, ...]] = deque()
         self._frames: deque[tuple[float, ...]] = deque()
-        self._first = math.nan  # time of the first frame, s
-        self._next_start = math.inf  # mocap time at which the next timing starts, s
+        self._next_start = math.inf  # mocap time the next timing starts at, s (inf: no frame yet)
         # (mocap time it takes effect, s; the job, or its result once known)
         self._pending: deque[tuple[float, _Job | ClockTiming | None]] = deque()
         self._timings: tuple[ClockTiming, ...] = ()  # the newest decided window timings
@@ -217,7 +216,8 @@ class OnlineClockCheck:
 
     @property
     def refused(self) -> bool:
-        """True while the newest decided timing is beyond ``check``'s rule."""
+        """True while the verdict (the newest decided timings, pooled) is beyond ``check``'s
+        rule."""
         return self.latest is not None and bool(self.latest.problem)
 
     def imu(self, row: tuple[float, float, float, float, float, float, float]) -> None:
@@ -239,8 +239,7 @@ class OnlineClockCheck:
         seen = fused and not math.isnan(quaternion[0])
         values = (*position.tolist(), *quaternion.tolist()) if seen else (math.nan,) * 7
         self._frames.append((t, *values))
-        if math.isnan(self._first):
-            self._first = t
+        if self._next_start == math.inf:  # the first frame
             self._next_start = t + min(self.window_s, PERIOD_S)
         while self._pending and self._pending[0][0] <= t:
             _, job = self._pending.popleft()
@@ -283,7 +282,6 @@ class OnlineClockCheck:
         self._imu.clear()
         self._frames.clear()
         self._pending.clear()
-        self._first = math.nan
         self._next_start = math.inf
 
     def state(self) -> tuple:
@@ -291,11 +289,11 @@ class OnlineClockCheck:
         exactly from it."""
         pending = tuple((due, job.result() if isinstance(job, _Job) else job)
                         for due, job in self._pending)
-        return (tuple(self._imu), tuple(self._frames), self._first, self._next_start,
-                pending, self._timings, self.latest)
+        return (tuple(self._imu), tuple(self._frames), self._next_start, pending,
+                self._timings, self.latest)
 
     def restore(self, state: tuple) -> None:
         """Continue from :meth:`state`."""
-        imu, frames, self._first, self._next_start, pending, self._timings, self.latest = state
+        imu, frames, self._next_start, pending, self._timings, self.latest = state
         self._imu, self._frames = deque(imu), deque(frames)
         self._pending = deque(pending)

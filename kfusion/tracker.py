@@ -765,6 +765,12 @@ class _KalmanEstimator:
         self.monitor.restore(snapshot[1])  # type: ignore[index]
 
 
+_NO_POSE: Final[tuple[NDArray[np.float64], NDArray[np.float64]]] = (np.full(3, np.nan),
+                                                                     np.full(4, np.nan))
+"""(origin, quaternion) of a frame with no rigid-body pose (read only)."""
+for _array in _NO_POSE:
+    _array.flags.writeable = False
+
 _ZERO_3X3: Final = np.zeros((3, 3))
 """Read-only zeros for :meth:`kfusion.monitor.ConsistencyMonitor.cover_rivals` (it returns a
 new array)."""
@@ -1230,8 +1236,10 @@ class Tracker:
         stream.last_t, stream.last_values = t, values
         stream.accepted += 1
         self._watch.mocap(t)
-        if self._clock_watch.enabled:  # timed on the markers' Kabsch pose, as a fused frame
-            self._clock_watch.mocap(t, *self._marker_frame_pose(observed), reason in FIXED)
+        if self._clock_watch.enabled:  # timed on a fused frame's Kabsch pose
+            fused = reason in FIXED
+            origin, quaternion = self._marker_frame_pose(observed) if fused else _NO_POSE
+            self._clock_watch.mocap(t, origin, quaternion, fused)
         return PushOutcome(reason in FIXED, reason)
 
     def _marker_frame_pose(self, observed: NDArray[np.float64]
@@ -1244,9 +1252,7 @@ class Tracker:
         assert self._marker_body is not None
         seen = np.isfinite(observed).all(axis=1)
         pose = marker_pose(observed[seen], self._marker_body[seen]) if seen.sum() >= 3 else None
-        if pose is None:
-            return np.full(3, np.nan), np.full(4, np.nan)
-        return pose
+        return _NO_POSE if pose is None else pose
 
     @_locked
     def estimate(self, t: float | None = None) -> Estimate:

@@ -158,24 +158,22 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
     while events and events[-1][1] == IMU_STREAM:
         events.pop()
     fast = type(fusion) is KalmanFusion  # its validated internals; other engines: public API
-    # the compiled engine's checked entry (CompiledFusion.predict_valid), for it and its shadow
-    predict_valid = getattr(fusion, "predict_valid", None) if not fast else None
-    shadow_valid = monitor is not None and monitor.takes_checked_samples
+    # the compiled engine's checked entry for it and, in a shadow gap, the monitor's compiled
+    # shadow in one call (CompiledFusion.predict_valid_with), as the Tracker predicts them
+    predict_valid_with = getattr(fusion, "predict_valid_with", None) if not fast else None
+    paired = monitor is not None and monitor.takes_checked_samples
     latest = -math.inf  # the latest finite stamp fed: no filter holds a later one
     for t, stream, index in events:
         if stream == IMU_STREAM:
             stamp = stamps[index]
-            if predict_valid is not None and finite[index] and stamp > latest:
+            if predict_valid_with is not None and finite[index] and stamp > latest:
                 # what predict() checks (finite, after the held stamp) holds: its kernel call
                 latest = stamp
                 a0, a1, a2 = accelerometer[index]
                 g0, g1, g2 = gyroscope[index]
-                predict_valid(stamp, a0, a1, a2, g0, g1, g2)
-                if shadow_valid and monitor is not None:
-                    shadow = monitor.gap_shadow  # the compiled shadow's checked entry too
-                    if shadow is not None:
-                        shadow.predict_valid(stamp, a0, a1, a2, g0, g1, g2)  # type: ignore[attr-defined]
-                elif monitor is not None:
+                shadow = monitor.gap_shadow if paired and monitor is not None else None
+                predict_valid_with(shadow, stamp, a0, a1, a2, g0, g1, g2)
+                if monitor is not None and not paired:
                     monitor.imu(stamp, accelerometer[index], gyroscope[index])
                 continue
             if finite[index]:
