@@ -14,13 +14,19 @@ Two tests run on the fixes the filter sees anyway (GUIDE §10, "sensor quality")
   matched down by the windowed NIS when that shows it pessimistic (``R mean NIS / 3`` once the
   window is full and the mean is below 3).
 
-Each shadow row gives the variance scale it needed (:func:`required_scale`): the smallest s for
-which ``s S`` holds e both ways kfusion's bound is read, inside the confidence-c ellipsoid
-(``d^2 = e^T S^-1 e <= s F^-1_chi2(3)(c)``) and inside 3 sigma on every axis. If the filter's
-growth of P in a gap were right, ``d^2 ~ chi-square(3)`` and s <= 1 at the rate c. The scale is
-applied to the reported ``P_p`` (where a gap's P_p dominates R, the two are the same). Scales are
-kept per horizon bin (time since the shadow's last fix) over the last ``memory`` rows, and the
-scale of a bin is covariance matching at a quantile (:func:`quantile_matching_scale`):
+Each shadow row gives two variance scales (:func:`shadow_row_scales`). The innovation scale
+(:func:`required_scale`) is the smallest s for which ``s S`` holds e both ways kfusion's bound is
+read, inside the confidence-c ellipsoid (``d^2 = e^T S^-1 e <= s F^-1_chi2(3)(c)``) and inside 3
+sigma on every axis. If the filter's growth of P in a gap were right, ``d^2 ~ chi-square(3)`` and
+s <= 1 at the rate c. The prediction scale, applied to the reported ``P_p``, is the same where it
+is at most 1; above 1 it is the smallest s for which ``s P_p + R`` holds e (R is known; scaling
+all of S would dilute the excess where R is comparable to ``P_p``: on a simulated arm lift with
+an accelerometer scale error far off its datasheet, 3-sigma coverage 0.964 against 0.971). The
+bound reads the prediction scales; the refusal rule reads the innovation scales (where R is much
+larger than ``P_p`` a prediction scale is ill-determined: a fix's noise a little beyond its
+quantile asks for a large multiple of a small P). Scales are kept per horizon bin (time since the
+shadow's last fix) over the last ``memory`` rows, and the scale of a bin is covariance matching at
+a quantile (:func:`quantile_matching_scale`):
 
     s(bin) = quantile_q({s_k in bin}),  q = matching_quantile
 
@@ -143,6 +149,55 @@ def required_scale(error: ArrayLike, covariance: ArrayLike, confidence: float = 
         return math.inf
     per_axis = float(np.max(e * e / variances)) / (sigmas * sigmas)
     return max(d2 / chi2_quantile(confidence, 3), per_axis)
+
+
+def shadow_row_scales(error: ArrayLike, covariance: ArrayLike, noise_variance: float,
+                      confidence: float = 0.99, sigmas: float = 3.0) -> tuple[float, float]:
+    """(innovation scale, prediction scale) of a shadow-gap row: an innovation e (3,) m = fix -
+    prediction, the prediction's covariance P (3, 3) m^2 and the fix's noise ``r I`` (m^2).
+
+    * The innovation scale is ``required_scale(e, P + r I)``: how far the whole innovation
+      covariance S was off. It measures how wrong the model is (the refusal rule reads it).
+    * The prediction scale is the variance scale the reported covariance ``P`` needs: the
+      innovation scale where that is at most 1 (evidence that shrinks the bound is read on the
+      whole innovation: a small error cannot tell a good prediction from a fix whose noise
+      happened to cancel its error); above 1, the smallest s for which ``s P + r I`` holds e
+      both ways the bound is read (``e^T (s P + r I)^-1 e <= F^-1_chi2(3)(c)`` and
+      ``e_i^2 <= sigmas^2 (s P_ii + r)``), since the fix's noise is known and is not the part
+      that was wrong. Scaling S instead dilutes the excess where r is comparable to P: a
+      prediction whose error has twice its covariance, with P = r, needs s = 2 but gives
+      ``(2 P + r) / (P + r)`` = 1.5. Where r is much larger than P the prediction scale is
+      ill-determined (a fix's noise a little beyond its quantile asks for a large multiple of
+      a small P), which is why the refusal rule reads the innovation scale.
+
+    The ellipsoid condition is solved by Newton's method on
+    ``g(s) = sum_i u_i^2 / (s lambda_i + r) - F^-1_chi2(3)(c)`` (``P = V diag(lambda) V^T``,
+    ``u = V^T e``): g is convex and decreasing, so from a point with ``g > 0`` the iterates
+    rise to the root without passing it. inf when P is singular or not finite, or when no
+    finite s holds e."""
+    e = np.asarray(error, dtype=float)
+    P = np.asarray(covariance, dtype=float)
+    whole = required_scale(e, P + noise_variance * np.eye(3), confidence, sigmas)
+    if not (math.isfinite(whole) and whole > 1.0):
+        return whole, whole
+    eigenvalues, vectors = np.linalg.eigh(0.5 * (P + P.T))
+    u2 = (vectors.T @ e) ** 2
+    limit = chi2_quantile(confidence, 3)
+    scale = whole  # g(whole) >= 0: s P + r I <= s (P + r I) for s > 1
+    for _ in range(100):
+        denominators = scale * eigenvalues + noise_variance
+        excess = float(np.sum(u2 / denominators)) - limit
+        slope = -float(np.sum(u2 * eigenvalues / denominators ** 2))
+        if excess <= 0.0:
+            break
+        if not slope < 0.0:
+            return whole, math.inf
+        step = -excess / slope
+        scale += step
+        if step <= 1e-12 * scale:
+            break
+    per_axis = float(np.max((e * e / (sigmas * sigmas) - noise_variance) / np.diag(P)))
+    return whole, max(scale, per_axis)
 
 
 @dataclass(frozen=True)
@@ -580,7 +635,8 @@ class MonitorReport:
         nis: the windowed NIS test over the last accepted fixes.
         shadow_gaps: shadow gaps completed.
         variance_scale: (bins,) covariance scale per horizon bin (NaN: no evidence yet).
-        std_scale: largest standard-deviation scale in use (>= sqrt(minimum_scale)).
+        std_scale: largest standard-deviation scale the shadow gaps' innovations needed, or
+            the NIS matching factor's (>= sqrt(minimum_scale)); the refusal rule reads it.
         bridging_allowed: False when the monitor refuses to bridge (gaps are ``lost``).
         suspected_cause: one of :data:`CAUSES`.
         clock_offset_s, clock_offset_std_s: the IMU clock offset the shadow gaps show
@@ -689,7 +745,8 @@ class ConsistencyMonitor:
         self.params = params if params is not None else MonitorParameters()
         self._shadow = shadow
         self._gravity = np.asarray(gravity, dtype=float)
-        self._scales = HorizonScales(self.params)
+        self._scales = HorizonScales(self.params)  # the shadow rows' prediction scales
+        self._innovation_scales = HorizonScales(self.params)  # their innovation scales
         self._nis: deque[float] = deque(maxlen=self.params.nis_window)
         # values derived from _nis and _scales, kept until those change (in mocap(), at a fused
         # fix and when a shadow gap closes) or a restore replaces them with the snapshot's own
@@ -703,6 +760,7 @@ class ConsistencyMonitor:
         self._next_start = -math.inf
         self._rows_h: list[float] = []
         self._rows_scale: list[float] = []
+        self._rows_innovation_scale: list[float] = []
         self._rows_error: list[NDArray[np.float64]] = []
         self._rows_velocity: list[NDArray[np.float64]] = []  # shadow velocity change, m/s
         self._start_velocity = np.zeros(3)  # the shadow's velocity at the gap's fix, m/s
@@ -784,9 +842,10 @@ class ConsistencyMonitor:
                 error = np.asarray(position, dtype=float) - estimate.position
                 noise = self._mocap_noise_variance()
                 self._rows_h.append(horizon)
-                self._rows_scale.append(required_scale(
-                    error, estimate.position_covariance + noise * np.eye(3),
-                    self.params.confidence))
+                innovation_scale, scale = shadow_row_scales(
+                    error, estimate.position_covariance, noise, self.params.confidence)
+                self._rows_scale.append(scale)
+                self._rows_innovation_scale.append(innovation_scale)
                 self._rows_error.append(error)
                 self._rows_velocity.append(estimate.velocity - self._start_velocity)
             if horizon >= self.params.shadow_window_s or outcome.kind not in USED_OUTCOMES:
@@ -819,6 +878,8 @@ class ConsistencyMonitor:
             # a new HorizonScales, never the one a snapshot may share (_copy_state)
             self._scales = self._scales.copy()
             self._scales.add_gap(self._rows_h, self._rows_scale)
+            self._innovation_scales = self._innovation_scales.copy()
+            self._innovation_scales.add_gap(self._rows_h, self._rows_innovation_scale)
             self._forget_derived(nis=False)
             self._accelerations.append(fit_acceleration_error(self._rows_h,
                                                               np.array(self._rows_error)))
@@ -828,6 +889,7 @@ class ConsistencyMonitor:
                     -self.params.clock_gaps:]
         self._start = None
         self._rows_h, self._rows_scale, self._rows_error = [], [], []
+        self._rows_innovation_scale = []
         self._rows_velocity = []
 
     # -------------------------------------------------------------- results
@@ -1000,9 +1062,11 @@ class ConsistencyMonitor:
         return abs(offset) > self.params.clock_tolerance_s + self.params.clock_sigmas * std
 
     def _std_scale(self) -> float:
+        """The std scale the refusal rule reads: the shadow innovations' largest matched
+        variance scale or the NIS matching factor, square-rooted."""
         if self._std_scale_value is None:
-            self._std_scale_value = math.sqrt(max(float(self._scales.scale_table().max()),
-                                                  self._nis_scale()))
+            largest = float(self._innovation_scales.scale_table().max())
+            self._std_scale_value = math.sqrt(max(largest, self._nis_scale()))
         return self._std_scale_value
 
     def snapshot(self) -> object:
