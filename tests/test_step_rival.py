@@ -23,7 +23,7 @@ from kfusion.monitor import (
     innovation_from_posterior,
 )
 from kfusion.recording import MocapFrames, Recording
-from kfusion.simulate import OcclusionSpec, simulate
+from kfusion.simulate import OcclusionSpec, faults, simulate
 from kfusion.tracker import Tracker
 
 K99 = math.sqrt(chi2_quantile(0.99, 3))
@@ -202,3 +202,25 @@ def test_the_step_rival_is_the_same_in_batch_tracker_and_engines():
     # the bound at every glitched row reaches past the shift (before the step rival: 2.4-3.7
     # mm at many, the innovations' factor alone)
     assert (K99 * run.result.std[inside].max(axis=1) > GLITCH_M).all()
+
+
+def test_the_sub_gate_glitch_fault_shifts_runs_of_frames_and_nothing_else():
+    simulation = simulate("random_reach", seed=2, duration=10.0,
+                          occlusions=OcclusionSpec(spacing=1.5))
+    streams = faults.Streams.of(simulation.recording)
+    glitched = faults.sub_gate_glitches(streams, size_m=0.003, frames=7, rate=0.004, seed=1)
+    before, after = streams.recording.mocap, glitched.recording.mocap
+    shift = after.position - before.position
+    moved = np.isfinite(shift).all(axis=1) & (np.abs(shift) > 0).any(axis=1)
+    np.testing.assert_allclose(np.linalg.norm(shift[moved], axis=1), 0.003, rtol=1e-9)
+    # runs of 7 frames (4 runs in 1001 frames; their occluded frames stay occluded)
+    starts = np.sort(np.random.default_rng(1).choice(len(before), size=4, replace=False))
+    expected = np.zeros(len(before), dtype=bool)
+    for start in starts:
+        expected[start:start + 7] = True
+    np.testing.assert_array_equal(moved, expected & before.visible)
+    np.testing.assert_array_equal(after.quaternion, before.quaternion)
+    np.testing.assert_array_equal(after.visible, before.visible)
+    assert glitched.recording.imu is streams.recording.imu
+    again = faults.sub_gate_glitches(streams, size_m=0.003, frames=7, rate=0.004, seed=1)
+    np.testing.assert_array_equal(again.recording.mocap.position, after.position)
