@@ -640,6 +640,9 @@ class MonitorReport:
         clock_offset_s, clock_offset_std_s: the IMU clock offset the shadow gaps show
             (positive: the IMU clock behind the mocap) and its 1-sigma, s
             (:meth:`ConsistencyMonitor.clock_offset`; NaN before 3 gaps with motion).
+        steps: fixes fused with an NIS beyond the ``step_probability`` quantile whose
+            prediction was kept as a rival (steps below the gate: a shifted marker cluster,
+            or motion the IMU did not show).
     """
 
     nis: NisTest
@@ -650,6 +653,7 @@ class MonitorReport:
     suspected_cause: str
     clock_offset_s: float = math.nan
     clock_offset_std_s: float = math.nan
+    steps: int = 0
 
     def as_dict(self) -> dict[str, object]:
         """Plain dict for health output."""
@@ -657,7 +661,7 @@ class MonitorReport:
                 "shadow_gaps": self.shadow_gaps, "variance_scale": list(self.variance_scale),
                 "std_scale": self.std_scale, "bridging_allowed": self.bridging_allowed,
                 "suspected_cause": self.suspected_cause, "clock_offset_s": self.clock_offset_s,
-                "clock_offset_std_s": self.clock_offset_std_s}
+                "clock_offset_std_s": self.clock_offset_std_s, "steps": self.steps}
 
 
 class HorizonScales:
@@ -776,6 +780,7 @@ class ConsistencyMonitor:
         # fixes below the gate: _step), oldest first, each larger than all later ones (a tuple:
         # shared, not copied, by snapshots)
         self._steps: tuple[tuple[float, NDArray[np.float64], NDArray[np.float64]], ...] = ()
+        self._step_count = 0  # fixes taken as steps (MonitorReport.steps)
 
     # -------------------------------------------------------------- events
 
@@ -887,6 +892,7 @@ class ConsistencyMonitor:
         kept = tuple(step for step in self._steps
                      if t - step[0] <= limit and float(step[1] @ step[1]) > size)
         self._steps = (*kept, (t, -innovation, covariance))
+        self._step_count += 1
 
     def _step_rival(self, t: float) -> tuple[float, NDArray[np.float64], NDArray[np.float64]
                                              ] | None:
@@ -1151,7 +1157,8 @@ class ConsistencyMonitor:
                              variance_scale=self._scales.variance_scales(), std_scale=std_scale,
                              bridging_allowed=self.bridging_allowed, suspected_cause=cause,
                              clock_offset_s=math.nan if clock is None else clock[0],
-                             clock_offset_std_s=math.nan if clock is None else clock[1])
+                             clock_offset_std_s=math.nan if clock is None else clock[1],
+                             steps=self._step_count)
 
 
 _NOT_STATE: Final = ("_shadow", "params", "_gravity")

@@ -180,6 +180,11 @@ def test_multi_frame_sub_gate_glitches_stay_inside_the_bound():
     # the glitches show in the NIS (every first shifted fix beyond the step quantile)
     starts = np.flatnonzero(inside & ~np.roll(inside, 1))
     assert (run.nis[starts] > chi2_quantile(MonitorParameters().step_probability, 3)).all()
+    assert run.monitor is not None and run.monitor.steps >= len(starts)
+    # the clean recording has no false step (the rival would widen its tracked rows)
+    clean = run_filter(simulate("random_reach", seed=3, duration=20.0,
+                                occlusions=OcclusionSpec(spacing=1.5)).recording)
+    assert clean.monitor is not None and clean.monitor.steps == 0
 
 
 def test_the_step_rival_is_the_same_in_batch_tracker_and_engines():
