@@ -348,6 +348,7 @@ FAULTS: list[tuple[str, Fault, str]] = [
     ("one mocap frame stamped 1000 s ahead", faults.mocap_future_stamp, "sim"),
     ("orientation flips 180 deg before a gap", faults.orientation_flip_before_gaps, "sim"),
     ("marker swap lasting 1 s", faults.marker_swap, "sim"),
+    ("marker dropout: body 4 mm off for 10 frames", faults.sub_gate_glitches, "sim"),
     ("IMU clock 5 ms behind", lambda s: faults.imu_clock_offset(s, -0.005), "sim"),
     ("IMU clock 10 ms behind", lambda s: faults.imu_clock_offset(s, -0.010), "sim"),
     ("IMU clock 20 ms behind", lambda s: faults.imu_clock_offset(s, -0.020), "sim"),

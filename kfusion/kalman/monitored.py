@@ -13,7 +13,8 @@ on the main filter's outcomes and times. So:
    arithmetic), and the shadow gap runs at once in the same kernel with its frames occluded
    (what the event-by-event shadow is fed: the IMU samples, ``update(t, None, None)`` at each
    frame), from which the shadow's estimates at the gap's rows are read. The filter's estimate
-   before a frame (needed while a gated fix is pending) is recomputed the same way.
+   before a frame (needed while a gated fix is pending) and after it (at a step in the fixes,
+   :meth:`MainAtRow.estimate`) are recomputed the same way.
 
 The event-by-event path (:func:`kfusion.kalman.batch.process_recording` with
 :class:`kfusion.kalman.compiled_fusion.CompiledFusion`) stays the reference; tests compare the
@@ -32,7 +33,7 @@ from numpy.typing import NDArray
 from kfusion.kalman import compiled, model
 from kfusion.kalman.compiled_fusion import CompiledFusion, CompiledSnapshot
 from kfusion.kalman.events import MOCAP_STREAM
-from kfusion.kalman.filter import KalmanFusion, UpdateOutcome
+from kfusion.kalman.filter import FilterEstimate, KalmanFusion, UpdateOutcome
 from kfusion.kalman.parameters import KalmanParameters
 from kfusion.monitor import ConsistencyMonitor, MonitorParameters
 from kfusion.recording import Recording
@@ -66,8 +67,9 @@ class MainAtRow:
     """The main filter as the monitor reads it (:meth:`snapshot`) after the frame of ``row``."""
 
     def __init__(self, checkpoints: compiled.Checkpoints, configuration: tuple[float, ...],
-                 row_event: list[int]) -> None:
+                 row_event: list[int], reader: CompiledFusion) -> None:
         self.checkpoints = checkpoints
+        self.reader = reader
         self.configuration = configuration
         self.row_event = row_event
         self.row = -1
@@ -75,6 +77,13 @@ class MainAtRow:
     def snapshot(self) -> RowSnapshot:
         state = self.checkpoints.state_before(self.row_event[self.row] + 1)
         return RowSnapshot(self.configuration, state, _no_counters(), row=self.row)
+
+    def estimate(self, t: float) -> FilterEstimate:
+        """The filter's estimate at t (s) after the frame of ``row`` (the monitor reads it at a
+        step in the fixes): ``reader`` restored from :meth:`snapshot`, as the event-by-event
+        filter would give it."""
+        self.reader.restore(self.snapshot())
+        return self.reader.estimate(t)
 
 
 class GapShadow:
@@ -161,8 +170,8 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
                        checkpoints, events, times, settings.shadow_window_s)
     monitor = ConsistencyMonitor(cast(KalmanFusion, shadow), settings, info.gravity)
     configuration = tuple(config.tolist())
-    main = MainAtRow(checkpoints, configuration, events)
     before = CompiledFusion(info.imu_to_body, info.gravity, params, lever_arm=info.lever_arm)
+    main = MainAtRow(checkpoints, configuration, events, before)
     recorder = recorder_class.from_kernel(reference, run)
     recorder.monitor = monitor
     recorder.scale_tables = np.ones((len(times), len(settings.horizon_edges_s)))

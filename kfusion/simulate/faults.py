@@ -162,6 +162,24 @@ def marker_swap(streams: Streams, fraction: float = 0.5, duration_s: float = 1.0
     return _mocap(streams, position=position, quaternion=quaternion)
 
 
+def sub_gate_glitches(streams: Streams, size_m: float = 0.004, frames: int = 10,
+                      rate: float = 0.005, seed: int = 0) -> Streams:
+    """A marker of the cluster dropping out for a while: from ``rate`` of the frames (chosen
+    with ``np.random.default_rng(seed)``), the rigid body is solved ``size_m`` m off in a
+    random direction for ``frames`` frames (the visible ones among them), below the gate's
+    floor (``gate_min_innovation``, 10 mm); orientation unchanged. A glitch may begin inside
+    an occlusion."""
+    mocap = streams.recording.mocap
+    rng = np.random.default_rng(seed)
+    count = max(1, round(rate * len(mocap)))
+    starts = np.sort(rng.choice(len(mocap), size=min(count, len(mocap)), replace=False))
+    position = np.array(mocap.position)
+    for start in starts.tolist():
+        direction = rng.standard_normal(3)
+        position[start:start + frames] += size_m * direction / np.linalg.norm(direction)
+    return _mocap(streams, position=position)
+
+
 def quaternion_columns_xyzw(streams: Streams) -> Streams:
     """Mocap quaternions written ``x, y, z, w`` instead of ``w, x, y, z``."""
     quaternion = streams.recording.mocap.quaternion

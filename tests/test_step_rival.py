@@ -1,0 +1,231 @@
+"""Steps in the fixes below the gate (:meth:`kfusion.monitor.ConsistencyMonitor._step`): a marker
+of the cluster drops out and the solved rigid body shifts by a few mm for some frames. The filter
+follows the shifted fixes and its innovations shrink, so the prediction the first shifted fix was
+fused with stays a rival hypothesis, and the bound covers both."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from test_batch_streaming import arrival_orders, stream_rows
+from test_broken_prediction import _monitor_with_fixes
+
+from kfusion.kalman import KalmanParameters, run_filter
+from kfusion.kalman.batch import resolve_parameters
+from kfusion.kalman.filter import ACCEPTED, UpdateOutcome
+from kfusion.monitor import (
+    MonitorParameters,
+    chi2_quantile,
+    innovation_from_posterior,
+)
+from kfusion.recording import MocapFrames, Recording
+from kfusion.simulate import OcclusionSpec, faults, simulate
+from kfusion.tracker import Tracker
+
+K99 = math.sqrt(chi2_quantile(0.99, 3))
+GLITCH_M = 0.004
+GLITCH_FRAMES = 10
+
+
+def kalman_update(x, P, z, r):
+    """A textbook Kalman update of a 3-D position with H = I, R = r I (numpy, not kfusion)."""
+    S = P + r * np.eye(3)
+    K = P @ np.linalg.inv(S)
+    return x + K @ (z - x), (np.eye(3) - K) @ P, z - x, S
+
+
+def test_innovation_from_posterior_by_hand():
+    # scalar: p- = r, the fix halfway: P+ = r / 2, z - p+ = y / 2, so y = 2 (z - p+), S = 2 r
+    r = 9e-8
+    found = innovation_from_posterior([0.002, 0.0, 0.0], [0.001, 0.0, 0.0], r / 2 * np.eye(3), r)
+    assert found is not None
+    np.testing.assert_allclose(found[0], [0.002, 0.0, 0.0], rtol=1e-12)
+    np.testing.assert_allclose(found[1], 2 * r * np.eye(3), rtol=1e-12)
+
+
+def test_innovation_from_posterior_recovers_a_correlated_update():
+    rng = np.random.default_rng(3)
+    r = 9e-8
+    for _ in range(20):
+        A = rng.standard_normal((3, 3))
+        P = 3e-8 * (A @ A.T) / 3 + 1e-9 * np.eye(3)  # a prediction tighter than 9 R
+        x, z = rng.standard_normal(3) * 0.1, rng.standard_normal(3) * 0.1
+        x_post, P_post, y, S = kalman_update(x, P, z, r)
+        found = innovation_from_posterior(z, x_post, P_post, r)
+        assert found is not None
+        np.testing.assert_allclose(found[0], y, rtol=1e-8, atol=1e-15)
+        np.testing.assert_allclose(found[1], S, rtol=1e-8, atol=1e-22)
+
+
+def test_innovation_from_posterior_refuses_a_loose_prediction_and_bad_numbers():
+    r = 9e-8
+    # P- = 10 R: gain 10/11 > 0.9, (R - P+)^-1 would amplify by 11
+    _, P_post, _, _ = kalman_update(np.zeros(3), 10 * r * np.eye(3), np.ones(3) * 1e-3, r)
+    assert innovation_from_posterior(np.ones(3) * 1e-3, np.zeros(3), P_post, r) is None
+    assert innovation_from_posterior([np.nan, 0, 0], np.zeros(3), r / 2 * np.eye(3), r) is None
+    assert innovation_from_posterior(np.zeros(3), np.zeros(3), r / 2 * np.eye(3), 0.0) is None
+
+
+class _Posterior:
+    """The main filter as the monitor reads it: a real fusion's snapshots (the shadow gaps) and
+    a given fused point and covariance (its estimate after the frame)."""
+
+    def __init__(self, fusion, position, covariance):
+        self.fusion, self.position, self.covariance = fusion, position, covariance
+
+    def snapshot(self):
+        return self.fusion.snapshot()
+
+    def estimate(self, t):
+        return SimpleNamespace(position=np.array(self.position),
+                               position_covariance=np.array(self.covariance))
+
+
+def test_a_step_keeps_its_prediction_as_a_rival_by_hand():
+    monitor, fusion, r = _monitor_with_fixes()
+    limit = KalmanParameters.from_profiles("mpu9255").max_bridge_s  # the fixture's profile
+    zeros = np.zeros((3, 3))
+
+    def fix(t, z, nis, fused_point=None, covariance=None):
+        main = _Posterior(fusion, z if fused_point is None else fused_point,
+                          r / 2 * np.eye(3) if covariance is None else covariance)
+        monitor.mocap(t, np.array(z, dtype=float), UpdateOutcome(t, ACCEPTED, nis), main)
+
+    threshold = chi2_quantile(MonitorParameters().step_probability, 3)
+    assert threshold == pytest.approx(30.66, abs=0.01)
+    t = 0.0
+    for _ in range(5):
+        t += 0.01
+        fix(t, [0.0, 0.0, 0.0], 3.0)
+    assert not monitor.has_rivals(t)
+    t += 0.01
+    fix(t, [0.004, 0.0, 0.0], threshold * 0.99)  # below the step quantile: nothing
+    assert not monitor.has_rivals(t)
+    # a 4 mm step with P- = R: P+ = R / 2, the fused point halfway; y = 4 mm, S = 2 R
+    t += 0.01
+    step_t = t
+    fix(t, [0.004, 0.0, 0.0], 80.0, fused_point=[0.002, 0.0, 0.0])
+    assert monitor.has_rivals(t)
+    expected = np.diag([0.004 ** 2, 0.0, 0.0]) + 2 * r * np.eye(3)
+    np.testing.assert_allclose(monitor.cover_rivals(t, np.zeros(3), zeros), expected,
+                               rtol=1e-9)
+    assert K99 * math.sqrt(monitor.cover_rivals(t, np.zeros(3), zeros)[0, 0]) > 3 * 0.004
+    # a smaller step later (the filter's overshoot) leaves the larger rival in place
+    t += 0.01
+    fix(t, [0.004, 0.0, 0.0], 40.0, fused_point=[0.0035, 0.0, 0.0])
+    np.testing.assert_allclose(monitor.cover_rivals(t, np.zeros(3), zeros), expected,
+                               rtol=1e-9)
+    small = np.diag([0.001 ** 2, 0.0, 0.0]) + 2 * r * np.eye(3)
+    # ... until the larger one ends (max_bridge_s after its fix), then the smaller one holds
+    np.testing.assert_allclose(monitor.cover_rivals(step_t + limit - 1e-9, np.zeros(3), zeros),
+                               expected, rtol=1e-9)
+    np.testing.assert_allclose(monitor.cover_rivals(step_t + limit + 0.005, np.zeros(3), zeros),
+                               small, rtol=1e-9)
+    assert not monitor.has_rivals(t + limit + 0.001)
+    # a marker-level update is no rigid-body step
+    monitor2, fusion2, _ = _monitor_with_fixes()
+    monitor2.mocap(0.01, np.array([0.004, 0.0, 0.0]),
+                   UpdateOutcome(0.01, ACCEPTED, 80.0, markers_used=4),
+                   _Posterior(fusion2, [0.002, 0.0, 0.0], r / 2 * np.eye(3)))
+    assert not monitor2.has_rivals(0.01)
+
+
+def glitched_recording() -> tuple[Recording, np.ndarray, np.ndarray]:
+    """20 s of simulated random_reach with 12 glitches: the fixes shifted 4 mm in a random
+    direction for 10 frames, each where the frame before and the 25 after are visible (a
+    glitch that begins inside an occlusion shows in no innovation: the first fix after it is
+    already shifted and agrees with the loose prediction). (recording, truth (m, 3), rows in a
+    glitch (m,) bool)."""
+    simulation = simulate("random_reach", seed=3, duration=20.0,
+                          occlusions=OcclusionSpec(spacing=1.5))
+    recording = simulation.recording
+    mocap = recording.mocap
+    visible = mocap.visible
+    rng = np.random.default_rng(5)
+    position = mocap.position.copy()
+    inside = np.zeros(len(position), dtype=bool)
+    starts: list[int] = []
+    for start in rng.permutation(np.arange(50, len(position) - 30)).tolist():
+        if visible[start - 1:start + 25].all() and not inside[max(0, start - 40):start + 40].any():
+            starts.append(start)
+            inside[start:start + GLITCH_FRAMES] = True
+        if len(starts) == 12:
+            break
+    for start in starts:
+        direction = rng.standard_normal(3)
+        position[start:start + GLITCH_FRAMES] += GLITCH_M * direction / np.linalg.norm(direction)
+    glitched = dataclasses.replace(recording,
+                                   mocap=MocapFrames(mocap.t, position, mocap.quaternion))
+    return glitched, np.asarray(simulation.truth.position), inside
+
+
+def test_multi_frame_sub_gate_glitches_stay_inside_the_bound():
+    """Before the step rival: 28 of the 120 glitched rows beyond the 99 % bound (1.85 % of all
+    rows wrong, the filter's bound at a fused fix about P+, far below the 4 mm shift); now none,
+    and the run's wrong rows are those of a clean run's tail (<= 1 %)."""
+    recording, truth, inside = glitched_recording()
+    run = run_filter(recording)
+    result = run.result
+    error = np.linalg.norm(result.position - truth, axis=1)
+    live = result.status != "lost"
+    bound = K99 * np.where(live[:, None], result.std, 0.0).max(axis=1)
+    wrong = live & (error > bound)
+    assert inside.sum() == 120 and live[inside].all()
+    assert not wrong[inside].any(), np.flatnonzero(wrong & inside)
+    assert wrong.sum() <= 0.01 * len(wrong)
+    # the glitches show in the NIS (every first shifted fix beyond the step quantile)
+    starts = np.flatnonzero(inside & ~np.roll(inside, 1))
+    assert (run.nis[starts] > chi2_quantile(MonitorParameters().step_probability, 3)).all()
+    assert run.monitor is not None and run.monitor.steps >= len(starts)
+    # the clean recording has no false step (the rival would widen its tracked rows)
+    clean = run_filter(simulate("random_reach", seed=3, duration=20.0,
+                                occlusions=OcclusionSpec(spacing=1.5)).recording)
+    assert clean.monitor is not None and clean.monitor.steps == 0
+
+
+def test_the_step_rival_is_the_same_in_batch_tracker_and_engines():
+    """The Tracker and the batch filter give the same bits with step rivals in play; the
+    compiled engine's two passes (the filter after a step read from its checkpoints) equal its
+    event-by-event run, and filterpy agrees."""
+    recording, _, inside = glitched_recording()
+    params = resolve_parameters(recording, None, {})
+    run = run_filter(recording, params)
+    tracker = Tracker.from_recording_info(recording.info, params=params)
+    rows = stream_rows(recording, tracker, arrival_orders(recording, 0.0)["natural"], 0.0)
+    np.testing.assert_array_equal(rows["position"], run.result.position)
+    np.testing.assert_array_equal(rows["std"], run.result.std)
+    stepwise = run_filter(recording, params, stepwise=True)
+    np.testing.assert_array_equal(stepwise.result.std, run.result.std)
+    np.testing.assert_array_equal(stepwise.result.position, run.result.position)
+    reference = run_filter(recording, params, engine="filterpy")
+    np.testing.assert_allclose(reference.result.std[inside], run.result.std[inside],
+                               rtol=1e-6)
+    # the bound at every glitched row reaches past the shift (before the step rival: 2.4-3.7
+    # mm at many, the innovations' factor alone)
+    assert (K99 * run.result.std[inside].max(axis=1) > GLITCH_M).all()
+
+
+def test_the_sub_gate_glitch_fault_shifts_runs_of_frames_and_nothing_else():
+    simulation = simulate("random_reach", seed=2, duration=10.0,
+                          occlusions=OcclusionSpec(spacing=1.5))
+    streams = faults.Streams.of(simulation.recording)
+    glitched = faults.sub_gate_glitches(streams, size_m=0.003, frames=7, rate=0.004, seed=1)
+    before, after = streams.recording.mocap, glitched.recording.mocap
+    shift = after.position - before.position
+    moved = np.isfinite(shift).all(axis=1) & (np.abs(shift) > 0).any(axis=1)
+    np.testing.assert_allclose(np.linalg.norm(shift[moved], axis=1), 0.003, rtol=1e-9)
+    # runs of 7 frames (4 runs in 1001 frames; their occluded frames stay occluded)
+    starts = np.sort(np.random.default_rng(1).choice(len(before), size=4, replace=False))
+    expected = np.zeros(len(before), dtype=bool)
+    for start in starts:
+        expected[start:start + 7] = True
+    np.testing.assert_array_equal(moved, expected & before.visible)
+    np.testing.assert_array_equal(after.quaternion, before.quaternion)
+    np.testing.assert_array_equal(after.visible, before.visible)
+    assert glitched.recording.imu is streams.recording.imu
+    again = faults.sub_gate_glitches(streams, size_m=0.003, frames=7, rate=0.004, seed=1)
+    np.testing.assert_array_equal(again.recording.mocap.position, after.position)
