@@ -49,18 +49,22 @@ undecided. A reset keeps the verdict (it is about the sensors' clocks) and drops
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
 from numpy.typing import NDArray
 
 from kfusion.monitor import fix_covariance_under_innovation_factor
+
+if TYPE_CHECKING:
+    from kfusion.recording import Recording
 
 PERIOD_S: Final = 2.5
 """s of mocap time between the starts of two timings (windows overlap by half by default)."""
@@ -88,12 +92,31 @@ class ClockTiming:
         offset_s, std_s: the IMU clock offset (positive: the IMU clock behind the mocap) and its
             1-sigma, s.
         problem: the finding (``check``'s words) when the offset is beyond the rule, else "".
+        mount_offset_s, mount_std_s: the same timing with the mount the gyroscope fits on
+            the window (:func:`gyroscope_mount_timing`), s; NaN when not timed so (the
+            offset within :data:`SUSPECT_SIGMAS` sigma of zero, or the gyroscope's fit
+            failing).
+        mount_error_deg: the angle between that mount and the declared one, deg (NaN: not
+            fitted).
     """
 
     end: float
     offset_s: float
     std_s: float
     problem: str
+    mount_offset_s: float = math.nan
+    mount_std_s: float = math.nan
+    mount_error_deg: float = math.nan
+
+    @property
+    def mount_suspected(self) -> bool:
+        """True when the problem is a mount error rather than the clock: the offset is
+        beyond ``check``'s rule with the declared mount and within it with the gyroscope's
+        (:func:`gyroscope_mount_timing`)."""
+        from kfusion.calibration.diagnosis import accelerometer_clock_finding
+
+        return bool(self.problem) and math.isfinite(self.mount_offset_s) and (
+            accelerometer_clock_finding(self.mount_offset_s, self.mount_std_s) is None)
 
 
 def time_window(imu: NDArray[np.float64], frames: NDArray[np.float64],
@@ -146,9 +169,59 @@ def time_window(imu: NDArray[np.float64], frames: NDArray[np.float64],
     # SYSTEMATIC_TIMING_S): a 5 s window of BROAD 24 read +6.9 +- 0.1 ms where the whole trial
     # reads +0.3 +- 0.05 ms, and pooled by the fit's sigma alone it refused a right clock
     std = math.hypot(std, SYSTEMATIC_TIMING_S)
+    mount_timing = (math.nan, math.nan, math.nan)
+    if abs(offset) > SUSPECT_SIGMAS * std:
+        mount_timing = gyroscope_mount_timing(recording, imu_to_body)
     problem = accelerometer_clock_finding(offset, std, f" over {window_s:g} s of the stream")
-    return ClockTiming(end=float(frames[-1, 0]), offset_s=offset, std_s=std,
-                       problem=problem or "")
+    timing = ClockTiming(float(frames[-1, 0]), offset, std, problem or "", *mount_timing)
+    return _with_mount_words(timing)
+
+
+def gyroscope_mount_timing(recording: Recording, imu_to_body: NDArray[np.float64]
+                           ) -> tuple[float, float, float]:
+    """(offset s, 1-sigma s, mount error deg): the accelerometer timed again with the mount
+    the gyroscope fits on the same data, and that mount's angle from ``imu_to_body``; NaNs
+    when either fit fails.
+
+    A mount error turns the accelerometer's axes, and on a motion whose acceleration turns
+    steadily (a circle) a turn of the axes looks like a time shift: a 3 deg mount error on
+    simulated circles read as 6-12 ms. The gyroscope's rates fix the mount apart from the
+    clock (:func:`kfusion.calibration.rates.fit_rates` fits the offset, the mount and the
+    gyro bias together; on those circles it found the 3 deg within 0.5 deg, and within 0.8 deg
+    of the right mount with a 10 ms offset), so with its mount a clock offset still reads as
+    one (10 ms: 7.9-9.8 ms) and a mount error no longer does (within the rule)."""
+    from kfusion.calibration.diagnosis import SYSTEMATIC_TIMING_S
+    from kfusion.calibration.rates import MAX_OFFSET_STD_S, fit_rates, rate_pairs
+    from kfusion.calibration.specific_force import fit_accelerometer_offset
+    from kfusion.conventions import rotation_angle
+
+    try:
+        with np.errstate(all="ignore"):
+            rates = fit_rates(rate_pairs(recording, 0.0), 0.0, 0.0, imu_to_body,
+                              fit_drift=False, fit_mount=True)
+            mount = np.asarray(rates.imu_to_body, dtype=float)
+            found = fit_accelerometer_offset(recording, 0.0, 0.0, mount, max_iterations=8)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return math.nan, math.nan, math.nan
+    offset, std = found.middle_offset, found.middle_offset_std
+    if not (found.converged and math.isfinite(offset) and std <= MAX_OFFSET_STD_S
+            and np.isfinite(mount).all()):
+        return math.nan, math.nan, math.nan
+    return (offset, math.hypot(std, SYSTEMATIC_TIMING_S),
+            math.degrees(rotation_angle(imu_to_body, mount)))
+
+
+def _with_mount_words(timing: ClockTiming) -> ClockTiming:
+    """``timing`` with its problem in a mount error's words when that is the cause
+    (:attr:`ClockTiming.mount_suspected`)."""
+    if not timing.mount_suspected:
+        return timing
+    words = (f"IMU mount about {timing.mount_error_deg:.1f} deg off imu_to_body (the "
+             f"gyroscope's fit): with it the accelerometer times the IMU clock at "
+             f"{timing.mount_offset_s * 1e3:+.1f} +- {timing.mount_std_s * 1e3:.1f} ms, with "
+             f"imu_to_body at {timing.offset_s * 1e3:+.1f} +- {timing.std_s * 1e3:.1f} ms; "
+             "run kfusion calibrate")
+    return dataclasses.replace(timing, problem=words)
 
 
 def pooled_timing(timings: tuple[ClockTiming, ...], overlap: float) -> ClockTiming:
@@ -170,7 +243,22 @@ def pooled_timing(timings: tuple[ClockTiming, ...], overlap: float) -> ClockTimi
     std = math.sqrt(min(len(timings), max(overlap, 1.0)) / float(weights.sum()))
     problem = accelerometer_clock_finding(
         offset, std, f" over the stream's last {len(timings)} windows")
-    return ClockTiming(end=timings[-1].end, offset_s=offset, std_s=std, problem=problem or "")
+    # with the gyroscope's mount: a window not timed so (its offset within SUSPECT_SIGMAS
+    # sigma of zero with the declared mount) counts with its own timing
+    mount_offsets = np.array([timing.offset_s if math.isnan(timing.mount_offset_s)
+                              else timing.mount_offset_s for timing in timings])
+    mount_weights = np.array([1.0 / (timing.std_s if math.isnan(timing.mount_std_s)
+                                     else timing.mount_std_s) ** 2 for timing in timings])
+    fitted = [timing.mount_error_deg for timing in timings
+              if not math.isnan(timing.mount_error_deg)]
+    mount_timing = (math.nan, math.nan, math.nan)
+    if fitted:
+        mount_timing = (float(mount_weights @ mount_offsets / mount_weights.sum()),
+                        math.sqrt(min(len(timings), max(overlap, 1.0))
+                                  / float(mount_weights.sum())),
+                        float(np.mean(fitted)))
+    return _with_mount_words(ClockTiming(timings[-1].end, offset, std, problem or "",
+                                         *mount_timing))
 
 
 def timing_error_covariance(offset_s: float, std_s: float,

@@ -146,7 +146,7 @@ from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, sho
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, event_key
 from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, OCCLUDED, REACQUIRED
 from kfusion.kalman.model import VELOCITY
-from kfusion.monitor import CLOCK, MonitorReport
+from kfusion.monitor import CLOCK, IMU_MOTION, MonitorReport
 from kfusion.online_clock import (
     DEFAULT_WINDOW_S,
     OnlineClockCheck,
@@ -1367,8 +1367,11 @@ class Tracker:
         if monitor is None:
             return None
         report = monitor.report()
-        if self._clock_watch.refused:  # the online timing refused the IMU clock
-            return dataclasses.replace(report, bridging_allowed=False, suspected_cause=CLOCK)
+        latest = self._clock_watch.latest
+        if latest is not None and latest.problem:  # the online timing refused the IMU clock
+            # or, timed again with the gyroscope's mount, found the mount off instead
+            cause = IMU_MOTION if latest.mount_suspected else CLOCK
+            return dataclasses.replace(report, bridging_allowed=False, suspected_cause=cause)
         return report
 
     @property

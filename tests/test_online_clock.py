@@ -418,3 +418,55 @@ def test_an_undeclared_offset_within_the_rule_keeps_the_bounds():
     wrong, worst = _wrong_rows(streams, np.asarray(simulation.truth.position))
     assert wrong <= 0.01
     assert worst <= 1.3
+
+
+def test_a_mount_error_is_named_as_such_not_as_a_clock_offset():
+    # circle seed 0 with imu_to_body 3 deg off about the body x axis (inside check's 5 deg
+    # tolerance): the windows up to 15 s time the accelerometer 5.5-6 ms ahead with the
+    # declared mount and refuse (before: named the IMU clock), but with the mount the
+    # gyroscope fits on each window (3.6 deg off) within 1 ms of zero: the cause is the mount
+    import dataclasses
+
+    from kfusion.conventions import quaternion_about_axis, quaternion_product
+    from kfusion.monitor import IMU_MOTION
+
+    streams = _simulated("circle")
+    recording = streams.recording
+    turn = quaternion_about_axis([1.0, 0.0, 0.0], np.radians([3.0]))[0]
+    mount = np.array(quaternion_product(tuple(map(float, turn)),
+                                        tuple(map(float, recording.info.imu_to_body))))
+    info = dataclasses.replace(recording.info, imu_to_body=mount)
+    tracker = Tracker.from_recording_info(info)
+    for _, stream, index in streams.events():
+        _push(tracker, recording, stream, index)
+        if stream == 1 and recording.mocap.t[index] >= 15.6:
+            break
+    health = tracker.health
+    assert health.clock_problem.startswith("IMU mount about")
+    assert "run kfusion calibrate" in health.clock_problem
+    report = tracker.consistency
+    assert report is not None and not report.bridging_allowed  # still refused: fail-safe
+    assert report.suspected_cause == IMU_MOTION
+
+
+def test_pooled_timing_pools_the_gyroscope_mount_timings_by_hand():
+    from kfusion.online_clock import ClockTiming, pooled_timing
+
+    # refused with the declared mount (6 ms +- 1: beyond 2 + 2 = 4 ms), within the rule with
+    # the gyroscope's (0.5 +- 1.0 ms, 3.0 deg off)
+    one = ClockTiming(5.0, 0.006, 0.001, "x", 0.0005, 0.001, 3.0)
+    assert one.mount_suspected
+    # a window within 2 sigma of zero is not timed again: its own timing counts for both
+    two = ClockTiming(7.5, 0.0015, 0.001, "")
+    assert not two.mount_suspected
+    pooled = pooled_timing((one, two), 1.0)
+    # equal weights: declared 3.75 ms, with the gyroscope's mount (0.5 + 1.5) / 2 = 1.0 ms;
+    # 1-sigma sqrt(1 / 2e6) = 0.71 ms: 3.75 > 2 + 1.41 refuses, 1.0 does not
+    assert pooled.offset_s == pytest.approx(0.00375)
+    assert pooled.mount_offset_s == pytest.approx(0.001)
+    assert pooled.mount_std_s == pytest.approx(np.sqrt(0.5e-6))
+    assert pooled.mount_error_deg == pytest.approx(3.0)
+    assert pooled.mount_suspected and pooled.problem.startswith("IMU mount about 3.0 deg")
+    # without a gyroscope mount timing the pooled verdict names the clock
+    plain = pooled_timing((two, ClockTiming(10.0, 0.006, 0.001, "x")), 1.0)
+    assert not plain.mount_suspected and plain.problem.startswith("IMU clock about")
