@@ -29,13 +29,37 @@ default): on 20 s simulated reaches the pooled timing reads 9.0-10.5 ms for a 10
 17.8-20.3 ms for 20 ms, refused from 5.5-8 s on, and -1.3 to +4.4 ms on clean clocks (single
 windows up to 7.5 ms in an adversarial review's clean runs); on the seven BROAD trials (first
 120 s each) single windows read up to 6.9 ms (trial 24: +6.9 +- 0.1 ms by the fit's sigma alone,
-which refused a right clock before the systematic term) and no pooled verdict refuses. Known
-limits: a mount error inside ``check``'s 5 deg tolerance (3 deg on a simulated circle) reads as
-5-8 ms and is refused as a clock (fail-safe, but the wrong cause); marker frames
+which refused a right clock before the systematic term) and no pooled verdict refuses. Frames
+within :data:`EDGE_MARGIN_S` of a window's IMU span are not timed (otherwise an offset of one
+IMU period made the fit alternate without converging, and an undeclared 5 ms stayed undecided
+until 8 s instead of 5.5 s).
+
+Suspected clock. An offset within the rule can still break the bound: an undeclared 5 ms, timed
+4.4 +- 1.5 ms, is refused only after 8-20 s, and meanwhile its gaps were up to 1.7x their bound
+(1.4 % of the Tracker's rows beyond it, ``benchmarks/failsafe.py --seeds 5 --duration 30``). A
+verdict beyond :data:`SUSPECT_SIGMAS` sigma of zero but within the rule is *suspected*
+(:attr:`OnlineClockCheck.suspected`): the Tracker keeps bridging, with a gap's covariance
+widened by the timing error the offset implies (:func:`timing_error_covariance`) and a fused
+fix's raised to at least the fix's own (:func:`suspected_clock_fix_covariance`). On clean
+simulated clocks 1.7 % of the rows were read while suspected (a first window reading 3.5-4.8
+ms), on the first 40 s of the seven BROAD trials 9 % (bounds up to 1.05x wider in gaps).
+
+Mount or clock. A mount error turns the accelerometer's axes, which on a steadily turning
+acceleration looks like a time shift: 3 deg inside ``check``'s 5 deg tolerance read as 6-12 ms
+on simulated circles. A window beyond :data:`SUSPECT_SIGMAS` sigma is timed again with the
+mount the gyroscope fits on it (:func:`gyroscope_mount_timing`); when the pooled timing is
+beyond the rule with the declared mount but within it with the gyroscope's
+(:attr:`ClockTiming.mount_suspected`), the finding names the mount and the Tracker's suspected
+cause is the IMU disagreeing with the motion, not the clock. The clock is refused all the same
+(the model is wrong either way). A real 10 ms offset still reads 6.6-10.7 ms with the
+gyroscope's mount (0.7-0.8 deg from the right one), and stays a clock finding.
+
+Known limits: marker frames
 (:meth:`kfusion.tracker.Tracker.push_markers`) are timed on their Kabsch pose
 (:func:`kfusion.kalman.markers.marker_pose`; a frame with fewer than 3 fitting markers counts
 as not seen); one worker thread serves every tracker of a process (a fit costs 30-130 ms of CPU per
-5 s window; about 30 live trackers at 500 Hz saturate it).
+5 s window, more for a window timed again with the gyroscope's mount; about 30 live trackers at
+500 Hz saturate it).
 
 Determinism. A fit costs tens of ms, so it runs in a worker thread, off the push path. Its
 result is applied at the first frame at least :data:`APPLY_AFTER_S` of mocap time after the
