@@ -145,8 +145,14 @@ from kfusion.conventions import (
 from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, short_repr
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, event_key
 from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, OCCLUDED, REACQUIRED
-from kfusion.monitor import CLOCK, MonitorReport
-from kfusion.online_clock import DEFAULT_WINDOW_S, OnlineClockCheck
+from kfusion.kalman.model import VELOCITY
+from kfusion.monitor import CLOCK, IMU_MOTION, MonitorReport
+from kfusion.online_clock import (
+    DEFAULT_WINDOW_S,
+    OnlineClockCheck,
+    suspected_clock_fix_covariance,
+    timing_error_covariance,
+)
 from kfusion.profiles import ImuProfile, imu_profile
 from kfusion.recording import RecordingInfo, check_clock, parse_info
 from kfusion.streamhealth import (
@@ -297,6 +303,9 @@ class Health:
             (:mod:`kfusion.online_clock`); NaN before one.
         clock_problem: that timing's finding when it refused the clock (the tracker then
             bridges nothing), else "".
+        clock_suspected: True while the timing is within the rule but beyond 2 sigma of zero
+            (:attr:`kfusion.online_clock.OnlineClockCheck.suspected`): the bounds are widened
+            by the timing error it implies.
     """
 
     imu_pushed: int
@@ -326,6 +335,7 @@ class Health:
     clock_offset_s: float = math.nan
     clock_offset_std_s: float = math.nan
     clock_problem: str = ""
+    clock_suspected: bool = False
 
     def as_dict(self) -> dict[str, Any]:
         """Plain nested dict (for logging or YAML/JSON)."""
@@ -547,7 +557,8 @@ class _Estimator(Protocol):
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str: ...
 
-    def read(self, t: float, trust_model: bool = True) -> _Reading | None: ...
+    def read(self, t: float, trust_model: bool = True,
+             suspected_clock: tuple[float, float] | None = None) -> _Reading | None: ...
 
     def finite(self) -> bool: ...
 
@@ -613,7 +624,8 @@ class _BaselineEstimator:
     def orientation_gated(self) -> int:
         return 0
 
-    def read(self, t: float, trust_model: bool = True) -> _Reading | None:
+    def read(self, t: float, trust_model: bool = True,
+             suspected_clock: tuple[float, float] | None = None) -> _Reading | None:
         output = self._tracker.estimate(t)
         if output.status == LOST:
             return None
@@ -671,6 +683,10 @@ class _KalmanEstimator:
         # only at frames and restores: one copy serves the checkpoints in between
         self._monitor_state: object | None = None
         self._reckoning: float | None = None  # dead_reckoning_until() until the next event
+        # the dead-reckoned velocity (3,) m/s right after the last fused fix (None before one):
+        # a suspected clock offset's error in a gap grows with its change (read)
+        self._fix_velocity: NDArray[np.float64] | None = None
+        self._mocap_noise_variance = float(params.mocap_position_noise) ** 2  # R = this I, m^2
 
     def predict(self, t: float, accelerometer: _Three, gyroscope: _Three) -> None:
         """A sample the tracker validated: t a finite float after the previous sample's stamp,
@@ -691,6 +707,8 @@ class _KalmanEstimator:
         prior = self._fusion.estimate(t) if self.monitor.has_gated_fix else None
         outcome = self._fusion.update(t, position, quaternion)
         self.monitor.mocap(t, position, outcome, self._fusion, prior)
+        if outcome.accepted:
+            self._fix_velocity = self._fusion.x[VELOCITY]
         return _KALMAN_OUTCOMES[outcome.kind]
 
     def update_markers(self, t: float, observed: NDArray, body: NDArray
@@ -703,11 +721,19 @@ class _KalmanEstimator:
         origin = outcome.marker_origin
         self.monitor.mocap(t, None if origin is None else np.array(origin), outcome,
                            self._fusion, prior)
+        if outcome.accepted:
+            self._fix_velocity = self._fusion.x[VELOCITY]
         return _KALMAN_OUTCOMES[outcome.kind], outcome.markers_used, outcome.markers_gated
 
-    def read(self, t: float, trust_model: bool = True) -> _Reading | None:
+    def read(self, t: float, trust_model: bool = True,
+             suspected_clock: tuple[float, float] | None = None) -> _Reading | None:
         """The reading at t (s); ``trust_model`` False (the IMU clock refused,
-        :mod:`kfusion.online_clock`) reads as when the monitor refuses the model."""
+        :mod:`kfusion.online_clock`) reads as when the monitor refuses the model;
+        ``suspected_clock`` (offset s, 1-sigma s: a suspected clock offset,
+        :attr:`kfusion.online_clock.OnlineClockCheck.suspected`) widens a gap's covariance by
+        the timing error it implies (:func:`kfusion.online_clock.timing_error_covariance`) and
+        a fix's to at least the fix's own
+        (:func:`kfusion.online_clock.suspected_clock_fix_covariance`)."""
         if not self._fusion.initialised:
             return None
         step = self._fusion.estimate(t)  # new arrays
@@ -727,8 +753,14 @@ class _KalmanEstimator:
         if step.time_since_fix > 0.0:  # in a gap: the monitor's scale
             scale = self.monitor.variance_scale(step.time_since_fix)
             covariance = covariance * scale
+            if suspected_clock is not None and self._fix_velocity is not None:
+                change = self._fusion.x[VELOCITY] - self._fix_velocity
+                covariance = covariance + timing_error_covariance(*suspected_clock, change)
         else:  # at a fix: fused with a prediction the shadow gaps may have found worse
             covariance = self.monitor.at_fix(t, covariance)
+            if suspected_clock is not None:  # and whose timing error is unknown
+                covariance = suspected_clock_fix_covariance(covariance,
+                                                            self._mocap_noise_variance)
         # the rivals' part formed alone and added, in the batch recorder's order of
         # operations (P + (d d^T + R), not (P + d d^T) + R): the two agree to the bit
         covariance = covariance + self.monitor.cover_rivals(t, step.position, _ZERO_3X3)
@@ -757,12 +789,14 @@ class _KalmanEstimator:
         if self._monitor_state is None:
             self._monitor_state = monitor.state_snapshot()
         # the shared state is never changed: ConsistencyMonitor.restore copies it
-        return self._fusion.snapshot(), (self._monitor_state, monitor.shadow_snapshot())
+        return (self._fusion.snapshot(), (self._monitor_state, monitor.shadow_snapshot()),
+                self._fix_velocity)  # never changed in place: shared safely
 
     def restore(self, snapshot: object) -> None:
         self._reckoning = self._monitor_state = None
         self._fusion.restore(snapshot[0])  # type: ignore[index]
         self.monitor.restore(snapshot[1])  # type: ignore[index]
+        self._fix_velocity = snapshot[2]  # type: ignore[index]
 
 
 _NO_POSE: Final[tuple[NDArray[np.float64], NDArray[np.float64]]] = (np.full(3, np.nan),
@@ -1291,7 +1325,8 @@ class Tracker:
         reading = None
         if status != LOST and math.isfinite(t):
             try:
-                reading = self._estimator.read(t, not self._clock_watch.refused)
+                watch = self._clock_watch
+                reading = self._estimator.read(t, not watch.refused, watch.suspected)
             except _NUMERICAL_ERRORS:
                 reading = None
             if reading is not None and not _finite_reading(reading,
@@ -1332,8 +1367,11 @@ class Tracker:
         if monitor is None:
             return None
         report = monitor.report()
-        if self._clock_watch.refused:  # the online timing refused the IMU clock
-            return dataclasses.replace(report, bridging_allowed=False, suspected_cause=CLOCK)
+        latest = self._clock_watch.latest
+        if latest is not None and latest.problem:  # the online timing refused the IMU clock
+            # or, timed again with the gyroscope's mount, found the mount off instead
+            cause = IMU_MOTION if latest.mount_suspected else CLOCK
+            return dataclasses.replace(report, bridging_allowed=False, suspected_cause=cause)
         return report
 
     @property
@@ -1366,6 +1404,7 @@ class Tracker:
             clock_offset_s=math.nan if clock is None else clock.offset_s,
             clock_offset_std_s=math.nan if clock is None else clock.std_s,
             clock_problem="" if clock is None else clock.problem,
+            clock_suspected=self._clock_watch.suspected is not None,
         )
 
     @_locked
