@@ -708,7 +708,7 @@ class _KalmanEstimator:
         outcome = self._fusion.update(t, position, quaternion)
         self.monitor.mocap(t, position, outcome, self._fusion, prior)
         if outcome.accepted:
-            self._fix_velocity = self._fusion.x[VELOCITY]
+            self._fix_velocity = self._fusion.x[VELOCITY].copy()
         return _KALMAN_OUTCOMES[outcome.kind]
 
     def update_markers(self, t: float, observed: NDArray, body: NDArray
@@ -722,7 +722,7 @@ class _KalmanEstimator:
         self.monitor.mocap(t, None if origin is None else np.array(origin), outcome,
                            self._fusion, prior)
         if outcome.accepted:
-            self._fix_velocity = self._fusion.x[VELOCITY]
+            self._fix_velocity = self._fusion.x[VELOCITY].copy()
         return _KALMAN_OUTCOMES[outcome.kind], outcome.markers_used, outcome.markers_gated
 
     def read(self, t: float, trust_model: bool = True,
