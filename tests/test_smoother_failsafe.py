@@ -83,12 +83,12 @@ def test_fix_rows_hold_the_mocap_on_real_fast_motion():
     from kfusion.kalman import run_smoother
     from kfusion.readers.broad import read_broad
 
-    path = next(path for path in broad_trials() if path.name.startswith("28"))
-    recording = first_seconds(read_broad(path, mocap_step=3), 40.0)
-    gapped = cut_gaps(recording, rng=np.random.default_rng(0), gap_range=(0.1, 0.3))
-    result = run_smoother(gapped.recording).result
+    trial = next(path for path in broad_trials() if path.name.startswith("28"))
+    gapped = cut_gaps(first_seconds(read_broad(trial, mocap_step=3), 40.0),
+                      rng=np.random.default_rng(0), gap_range=(0.1, 0.3)).recording
+    result = run_smoother(gapped).result
     fixes = np.asarray(result.status) == TRACKED
     assert fixes.sum() > 2500
-    wrong, worst = wrong_fraction(result, gapped.recording.mocap.position, fixes)
+    wrong, worst = wrong_fraction(result, gapped.mocap.position, fixes)
     assert wrong <= 0.01, wrong
     assert worst <= 3.0, worst
