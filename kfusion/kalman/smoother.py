@@ -29,7 +29,11 @@ own (:func:`holdout_scales`); the copy is smoothed, and the errors at the hidden
 the smoothed covariance give a variance scale per horizon (distance to the nearest fix), matched
 at the bound's confidence exactly as the online shadow gaps are. The real gaps' covariance is
 scaled by it, or the rows are ``lost`` when the scale needed exceeds ``max_std_scale``. It costs
-one more smoother pass over the recording (skipped when it has no gap to bridge).
+one more smoother pass over the recording (skipped when it has no gap to bridge). The rows at
+fixes, which the hold-out never samples (and whose P, far below the fixes' noise R, no test
+against the fixes can check), carry the forward monitor's scale when it found the IMU model too
+confident (:func:`model_scale`) and reach any fix that contradicts them
+(:func:`fix_residual_rivals`).
 """
 
 from __future__ import annotations
