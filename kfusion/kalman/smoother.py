@@ -29,7 +29,11 @@ own (:func:`holdout_scales`); the copy is smoothed, and the errors at the hidden
 the smoothed covariance give a variance scale per horizon (distance to the nearest fix), matched
 at the bound's confidence exactly as the online shadow gaps are. The real gaps' covariance is
 scaled by it, or the rows are ``lost`` when the scale needed exceeds ``max_std_scale``. It costs
-one more smoother pass over the recording (skipped when it has no gap to bridge).
+one more smoother pass over the recording (skipped when it has no gap to bridge). The rows at
+fixes, which the hold-out never samples (and whose P, far below the fixes' noise R, no test
+against the fixes can check), carry the forward monitor's scale when it found the IMU model too
+confident (:func:`model_scale`) and reach any fix that contradicts them
+(:func:`fix_residual_rivals`).
 """
 
 from __future__ import annotations
@@ -76,6 +80,7 @@ from kfusion.monitor import (
     MonitorParameters,
     MonitorReport,
     bridging_allowed,
+    chi2_quantile,
     nis_matching_scale,
     required_scale,
 )
@@ -232,6 +237,57 @@ def partial_occlusion_floor(recording: Recording, smoothed_variance: NDArray[np.
     return np.where(few & np.isfinite(filtered_variance), floored, smoothed_variance)
 
 
+def fix_noise_variance(params: KalmanParameters, nis: NDArray[np.float64],
+                       outcome: NDArray[np.str_]) -> float:
+    """The fixes' noise variance (m^2 per axis): R, matched down by a forward pass's NIS over
+    its accepted fixes when that shows R pessimistic (mean NIS below 3), as in the online
+    monitor's shadow innovations."""
+    accepted = np.asarray(nis)[np.asarray(outcome).astype(str) == ACCEPTED]
+    return float(params.mocap_position_noise ** 2 * min(1.0, nis_matching_scale(accepted)))
+
+
+def model_scale(std_scale: float) -> float:
+    """Variance scale (>= 1) of the smoothed rows at fixes from the forward monitor's std
+    scale (:attr:`kfusion.monitor.MonitorReport.std_scale`, the largest its shadow gaps or
+    innovations needed): ``max(1, std_scale^2)``.
+
+    The hold-out (:func:`holdout_scales`) never samples a fix, and no test against the fixes
+    can check a smoothed P far below their noise R there: the smoothed row at a fix rests on
+    the IMU model that carries its neighbours' fixes to it. The forward pass's shadow gaps
+    reach horizons where that model dominates; where they found it too confident, the row
+    carries their scale: ``s P+``, the upper bound of
+    :func:`kfusion.monitor.fix_covariance_under_scale` (equal to it when P+ is far below R).
+    Measured with the IMU's noise 4 times its profile: the smoothed rows at fixes needed a
+    standard-deviation scale of 1.14 against the truth and the monitor's was 1.14. A scale
+    below 1 (a pessimistic profile) leaves the rows as they are."""
+    return max(1.0, std_scale * std_scale)
+
+
+def fix_residual_rivals(fixed: NDArray[np.bool_], residual: NDArray[np.float64],
+                        noise_variance: float, confidence: float = 0.99
+                        ) -> NDArray[np.float64]:
+    """Per-axis variance (m, 3) m^2 a smoothed row at a fix needs to reach its fix when the
+    fix contradicts it.
+
+    At a fused fix the smoothed residual ``r = z - x^s`` (fix minus smoothed position, (m, 3)
+    m; NaN where there is no fix) has covariance ``R - P^s`` under the model, at most R. A
+    residual beyond ``|r|^2 / R > F^-1_chi2(3)(c)`` is a fix the smoother averaged away with
+    the IMU model (motion the model does not have, or an IMU worse than its profile): the data
+    then leave two positions open, and the bound holds both, as it holds the monitor's gated
+    fixes (:meth:`kfusion.monitor.ConsistencyMonitor.cover_rivals`): the row gets ``r_i^2`` per
+    axis. Zero at every other row (the rows between fixes are the hold-out's,
+    :func:`holdout_scales`) and where ``noise_variance`` is not positive."""
+    residual = np.asarray(residual, dtype=float)
+    rival = np.zeros((len(residual), 3))
+    marked = np.asarray(fixed, dtype=bool) & np.isfinite(residual).all(axis=1)
+    if not noise_variance > 0.0:
+        return rival
+    square = np.where(marked[:, None], residual, 0.0) ** 2
+    beyond = marked & (square.sum(axis=1) > noise_variance * chi2_quantile(confidence, 3))
+    rival[beyond] = square[beyond]
+    return rival
+
+
 def holdout_scales(recording: Recording, params: KalmanParameters, monitor: MonitorParameters,
                    seed: int = 0, measurement: str = BODY, engine: str = DEFAULT_ENGINE
                    ) -> HorizonScales | None:
@@ -265,8 +321,7 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     horizon = nearest_fix_distance(mocap.t, fixed)
     # the hidden fix's noise: R, matched down by the NIS when that shows it pessimistic (as in
     # the online monitor's shadow innovations)
-    nis = run.nis[run.outcome == ACCEPTED]
-    noise = params.mocap_position_noise ** 2 * min(1.0, nis_matching_scale(nis))
+    noise = fix_noise_variance(params, run.nis, run.outcome)
     covariance = position_covariances(run.P, run.output_matrix) + noise * np.eye(3)
     # matched at the bound's own confidence: the hold-out gaps sample the same recording the
     # real gaps are in (the online monitor's shadows predict gaps still to come)
@@ -429,7 +484,11 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                                           recorder.output_offset))
     if measurement == MARKERS:
         variance = partial_occlusion_floor(recording, variance, filtered_variance)
-    if watcher is not None:
+    report = None if watcher is None else watcher.report()
+    if report is not None:
+        # the smoothed rows at fixes rest on the forward pass's IMU model: where its shadow
+        # gaps or innovations found it too confident, they carry that scale (model_scale)
+        variance = np.where(fixed[:, None], variance * model_scale(report.std_scale), variance)
         # where the forward monitor widened a fused fix (its prediction, or the innovations,
         # found worse than the model says: ConsistencyMonitor.at_fix), the smoothed row rests
         # on the same fix and model: it is not presented as surer than that
@@ -448,8 +507,12 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                                             holdout.params.horizon_edges_s)
     if watcher is not None:
         # the forward pass's rival hypotheses (a gated fix, or the prediction a fix replaced
-        # after gating) are positions the data left open: the smoothed bound holds them too
-        variance = variance + recorder.rival_variance
+        # after gating) are positions the data left open, and so are the fixes the smoothed
+        # rows miss by more than their noise: the smoothed bound holds them too
+        noise = fix_noise_variance(params, recorder.nis, recorder.outcome)
+        variance = (variance + recorder.rival_variance
+                    + fix_residual_rivals(fixed, recording.mocap.position - position, noise,
+                                          watcher.params.confidence))
     # the smoothed rows are built on the IMU model wherever they are: when the hold-out or the
     # forward monitor (anywhere in the recording) refused it, a row with a fix is that fix
     # alone and every other row is lost
@@ -469,7 +532,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                            time_since_fix=since, method="smoother"),
         filtered=filtered, x=x_smoothed, P=P_smoothed, outcome=recorder.outcome.astype(str),
         nis=recorder.nis,
-        params=params, monitor=None if watcher is None else watcher.report(), holdout=holdout,
+        params=params, monitor=report, holdout=holdout,
         output_matrix=recorder.output_matrix)
 
 
