@@ -57,9 +57,10 @@ gyroscope's mount (0.7-0.8 deg from the right one), and stays a clock finding.
 Known limits: marker frames
 (:meth:`kfusion.tracker.Tracker.push_markers`) are timed on their Kabsch pose
 (:func:`kfusion.kalman.markers.marker_pose`; a frame with fewer than 3 fitting markers counts
-as not seen); one worker thread serves every tracker of a process (a fit costs 30-130 ms of CPU per
+as not seen); one worker thread serves every tracker of a process (a fit costs 15-130 ms of CPU per
 5 s window, more for a window timed again with the gyroscope's mount; about 30 live trackers at
-500 Hz saturate it).
+500 Hz saturate it). A tracker whose timing the busy worker has not started when it is due takes
+it back and computes it itself, so its wait is one timing, not the queue.
 
 Determinism. A fit costs tens of ms, so it runs in a worker thread, off the push path. Its
 result is applied at the first frame at least :data:`APPLY_AFTER_S` of mocap time after the
@@ -361,8 +362,11 @@ class _Job:
 
     def result(self) -> ClockTiming | None:
         """The timing, waiting for the worker; computed here when the worker cannot give it
-        (not submitted, or submitted by the parent of this forked process)."""
-        if self.future is None or self.process != os.getpid():
+        (not submitted, or submitted by the parent of this forked process) or has not started
+        it (the worker is busy with other trackers' timings: taking the job back bounds the
+        wait by one timing's cost, not by the queue's; the same function on the same data,
+        so the outputs do not change)."""
+        if self.future is None or self.process != os.getpid() or self.future.cancel():
             return _timed(self.arguments)
         return self.future.result()
 

@@ -230,6 +230,46 @@ def test_a_worker_that_cannot_run_is_replaced_by_the_caller(monkeypatch):
     assert [r[0] for r in readings] == [r[0] for r in expected]
 
 
+def test_a_timing_the_busy_worker_has_not_started_is_computed_by_the_caller(monkeypatch):
+    # other trackers' timings fill the shared worker: a tracker whose own timing is still
+    # queued when due takes it back (Future.cancel) and computes it, with the same outputs
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    streams = faults.imu_clock_offset(_simulated(), -0.010)
+    expected, _ = _run(streams)
+    busy = ThreadPoolExecutor(max_workers=1)
+    release = threading.Event()
+    busy.submit(release.wait)  # another tracker's timing that does not end during the run
+    watchdog = threading.Timer(60.0, release.set)  # a caller that waits fails, not hangs
+    watchdog.start()
+    submitted: list = []
+    original_submit = busy.submit
+
+    def recorded_submit(function, *args):
+        future = original_submit(function, *args)
+        submitted.append(future)
+        return future
+
+    monkeypatch.setattr(busy, "submit", recorded_submit)
+    monkeypatch.setattr(online_clock, "_worker", lambda: busy)
+    try:
+        readings, tracker = _run(streams)
+        # every timing that fell due was taken back; the last ones were not due yet
+        cancelled = [future.cancelled() for future in submitted]
+        assert sum(cancelled) >= 3 and not any(future.running() for future in submitted)
+    finally:
+        watchdog.cancel()
+        release.set()
+        busy.shutdown()
+    assert "behind the mocap" in tracker.health.clock_problem
+    assert [r[0] for r in readings] == [r[0] for r in expected]
+    for (_, position, covariance), (_, position_1, covariance_1) in zip(expected, readings,
+                                                                        strict=True):
+        np.testing.assert_array_equal(position, position_1)
+        np.testing.assert_array_equal(covariance, covariance_1)
+
+
 def test_a_failing_timing_leaves_the_verdict_and_the_tracker_running(monkeypatch):
     def broken(*args, **kwargs):
         raise ZeroDivisionError("a bug in a timing")
