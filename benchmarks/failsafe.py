@@ -350,6 +350,7 @@ FAULTS: list[tuple[str, Fault, str]] = [
     ("marker swap lasting 1 s", faults.marker_swap, "sim"),
     ("marker dropout: body 4 mm off for 10 frames", faults.sub_gate_glitches, "sim"),
     ("IMU clock 5 ms behind", lambda s: faults.imu_clock_offset(s, -0.005), "sim"),
+    ("IMU clock 5 ms ahead", lambda s: faults.imu_clock_offset(s, 0.005), "sim"),
     ("IMU clock 10 ms behind", lambda s: faults.imu_clock_offset(s, -0.010), "sim"),
     ("IMU clock 20 ms behind", lambda s: faults.imu_clock_offset(s, -0.020), "sim"),
     ("IMU clock 137 ms behind", lambda s: faults.imu_clock_offset(s, -0.137), "sim"),
