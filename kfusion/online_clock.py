@@ -249,6 +249,15 @@ def _with_mount_words(timing: ClockTiming) -> ClockTiming:
     return dataclasses.replace(timing, problem=words)
 
 
+def _pooled_mean(offsets_s: list[float], stds_s: list[float], overlap: float
+                 ) -> tuple[float, float]:
+    """(mean s, 1-sigma s) of :func:`pooled_timing`'s rule: the inverse-variance mean of the
+    offsets, its variance inflated by ``min(n, overlap)`` for windows sharing data."""
+    weights = np.array([1.0 / std ** 2 for std in stds_s])
+    mean = float(weights @ np.array(offsets_s) / weights.sum())
+    return mean, math.sqrt(min(len(offsets_s), max(overlap, 1.0)) / float(weights.sum()))
+
+
 def pooled_timing(timings: tuple[ClockTiming, ...], overlap: float) -> ClockTiming:
     """The inverse-variance mean of window timings, judged by ``check``'s rule.
 
@@ -262,26 +271,21 @@ def pooled_timing(timings: tuple[ClockTiming, ...], overlap: float) -> ClockTimi
 
     if len(timings) == 1:
         return timings[0]
-    weights = np.array([1.0 / timing.std_s ** 2 for timing in timings])
-    offsets = np.array([timing.offset_s for timing in timings])
-    offset = float(weights @ offsets / weights.sum())
-    std = math.sqrt(min(len(timings), max(overlap, 1.0)) / float(weights.sum()))
+    offset, std = _pooled_mean([timing.offset_s for timing in timings],
+                               [timing.std_s for timing in timings], overlap)
     problem = accelerometer_clock_finding(
         offset, std, f" over the stream's last {len(timings)} windows")
     # with the gyroscope's mount: a window not timed so (its offset within SUSPECT_SIGMAS
     # sigma of zero with the declared mount) counts with its own timing
-    mount_offsets = np.array([timing.offset_s if math.isnan(timing.mount_offset_s)
-                              else timing.mount_offset_s for timing in timings])
-    mount_weights = np.array([1.0 / (timing.std_s if math.isnan(timing.mount_std_s)
-                                     else timing.mount_std_s) ** 2 for timing in timings])
     fitted = [timing.mount_error_deg for timing in timings
               if not math.isnan(timing.mount_error_deg)]
     mount_timing = (math.nan, math.nan, math.nan)
     if fitted:
-        mount_timing = (float(mount_weights @ mount_offsets / mount_weights.sum()),
-                        math.sqrt(min(len(timings), max(overlap, 1.0))
-                                  / float(mount_weights.sum())),
-                        float(np.mean(fitted)))
+        mount_timing = (*_pooled_mean(
+            [timing.offset_s if math.isnan(timing.mount_offset_s) else timing.mount_offset_s
+             for timing in timings],
+            [timing.std_s if math.isnan(timing.mount_std_s) else timing.mount_std_s
+             for timing in timings], overlap), float(np.mean(fitted)))
     return _with_mount_words(ClockTiming(timings[-1].end, offset, std, problem or "",
                                          *mount_timing))
 
