@@ -1,0 +1,56 @@
+"""The coverage benchmark's oracle sharpness (``bound_coverage.py --oracle``), by hand."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from kfusion.evaluate import GapErrors
+
+BENCHMARK_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bound_coverage.py"
+
+
+def load_benchmark():
+    spec = importlib.util.spec_from_file_location("kfusion_benchmark_bound_coverage",
+                                                  BENCHMARK_PATH)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_oracle_sharpness_by_hand():
+    # 100 rows, unit sigma on every axis, errors 0.1 k along x (k = 1..100).
+    size = 0.1 * np.arange(1, 101)
+    errors = GapErrors(np.column_stack([size, np.zeros(100), np.zeros(100)]),
+                       np.ones((100, 3)), 0)
+    r99 = math.sqrt(chi2.ppf(0.99, 3))
+    # median of r99 / (0.1 k): the mean of its 50th and 51st values
+    sharpness = r99 * (10 / 50 + 10 / 51) / 2
+    # numpy's linear quantile at 0.99 of z = 0.1 k / r99: index 98.01 -> (9.9 + 0.01 * 0.1) / r99
+    c99 = 9.901 / r99
+    # at 0.97 of w = 0.1 k / 3: index 96.03 -> (9.7 + 0.03 * 0.1) / 3
+    c97 = 9.703 / 3
+    oracle = load_benchmark().oracle_sharpness(errors)
+    assert oracle["o99"] == pytest.approx(c99 * sharpness, rel=1e-12)
+    assert oracle["o97"] == pytest.approx(c97 * sharpness, rel=1e-12)
+    assert oracle["o99"] == pytest.approx(9.901 * (10 / 50 + 10 / 51) / 2, rel=1e-12)
+
+
+def test_oracle_sharpness_of_a_calibrated_gaussian():
+    # Isotropic N(0, I): 99 % inside r99 already, so o99 is the sharpness itself, about
+    # r99 / median |e| = 3.368 / 1.538 = 2.19 (median of a chi with 3 degrees of freedom).
+    rng = np.random.default_rng(3)
+    error = rng.standard_normal((200_000, 3))
+    oracle = load_benchmark().oracle_sharpness(GapErrors(error, np.ones_like(error), 0))
+    expected = math.sqrt(chi2.ppf(0.99, 3)) / math.sqrt(chi2.ppf(0.5, 3))
+    assert oracle["o99"] == pytest.approx(expected, rel=0.02)
+    empty = load_benchmark().oracle_sharpness(GapErrors(np.empty((0, 3)), np.empty((0, 3)), 0))
+    assert math.isnan(empty["o99"]) and math.isnan(empty["o97"])
