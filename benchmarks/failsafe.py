@@ -349,6 +349,15 @@ FAULTS: list[tuple[str, Fault, str]] = [
     ("orientation flips 180 deg before a gap", faults.orientation_flip_before_gaps, "sim"),
     ("marker swap lasting 1 s", faults.marker_swap, "sim"),
     ("marker dropout: body 4 mm off for 10 frames", faults.sub_gate_glitches, "sim"),
+    ("marker dropout: body 1.5 mm off for 10 frames",
+     lambda s: faults.sub_gate_glitches(s, size_m=0.0015), "sim"),
+    ("body 1.5 mm off on the 3 frames before each occlusion", faults.occlusion_edge_offsets,
+     "sim"),
+    ("body drifting 1.5 mm off over the 5 frames before each occlusion",
+     faults.occlusion_edge_drift, "sim"),
+    ("body 4 mm off on the 10 frames after each occlusion",
+     lambda s: faults.occlusion_edge_offsets(s, 0.004, 10, "after"), "sim"),
+    ("IMU rate 8x lower from halfway, no anti-aliasing", faults.imu_rate_drops, "sim"),
     ("IMU clock 5 ms behind", lambda s: faults.imu_clock_offset(s, -0.005), "sim"),
     ("IMU clock 5 ms ahead", lambda s: faults.imu_clock_offset(s, 0.005), "sim"),
     ("IMU clock 10 ms behind", lambda s: faults.imu_clock_offset(s, -0.010), "sim"),
@@ -366,6 +375,10 @@ BROAD_FAULTS: list[tuple[str, Fault]] = [
     ("real fast motion (BROAD, held-out gaps)", lambda s: s),
     ("BROAD + IMU clock 137 ms behind", lambda s: faults.imu_clock_offset(s, -0.137)),
     ("BROAD + gravity sign flipped", faults.gravity_sign_flipped),
+    ("BROAD + body 1.5 mm off on the 3 frames before each occlusion",
+     faults.occlusion_edge_offsets),
+    ("BROAD + body 3 mm off on the 10 frames after each occlusion",
+     lambda s: faults.occlusion_edge_offsets(s, 0.003, 10, "after")),
 ]
 
 

@@ -99,3 +99,49 @@ def test_metadata_and_column_order_faults(streams):
     xyzw = fault.quaternion_columns_xyzw(streams).recording.mocap.quaternion
     np.testing.assert_array_equal(xyzw[:, 3], streams.recording.mocap.quaternion[:, 0])
     np.testing.assert_array_equal(xyzw[:, :3], streams.recording.mocap.quaternion[:, 1:])
+
+
+@pytest.mark.parametrize("side", ["before", "after"])
+def test_occlusion_edge_offsets_shift_the_frames_next_to_each_gap(streams, side):
+    shifted = fault.occlusion_edge_offsets(streams, size_m=0.0015, frames=3, side=side)
+    mocap = streams.recording.mocap
+    difference = shifted.recording.mocap.position - mocap.position
+    moved = np.flatnonzero(np.any(np.nan_to_num(difference) != 0.0, axis=1))
+    runs = occlusion_runs(mocap.visible)
+    expected = [row for start, stop in runs
+                for row in (range(start - 3, start) if side == "before" else range(stop, stop + 3))
+                if 0 <= row < len(mocap)]
+    assert moved.tolist() == expected
+    for start, stop in runs:  # one shift of 1.5 mm per occlusion, the same on its 3 frames
+        rows = range(start - 3, start) if side == "before" else range(stop, stop + 3)
+        block = difference[list(rows)]
+        np.testing.assert_allclose(np.linalg.norm(block, axis=1), 0.0015, rtol=1e-9)
+        np.testing.assert_allclose(block, np.tile(block[0], (3, 1)), atol=1e-15)
+    np.testing.assert_array_equal(shifted.recording.mocap.quaternion, mocap.quaternion)
+    with pytest.raises(ValueError, match="side: expected 'before' or 'after'"):
+        fault.occlusion_edge_offsets(streams, side="during")
+
+
+def test_occlusion_edge_drift_ramps_to_its_size(streams):
+    drifted = fault.occlusion_edge_drift(streams, size_m=0.002, frames=5)
+    mocap = streams.recording.mocap
+    for start, _ in occlusion_runs(mocap.visible):
+        block = (drifted.recording.mocap.position - mocap.position)[start - 5:start]
+        # frame i of 5 is i/5 of the way to 2 mm, along one direction
+        np.testing.assert_allclose(np.linalg.norm(block, axis=1),
+                                   [0.0004, 0.0008, 0.0012, 0.0016, 0.002], rtol=1e-9)
+        np.testing.assert_allclose(block / np.linalg.norm(block, axis=1)[:, None],
+                                   np.tile(block[-1] / 0.002, (5, 1)), atol=1e-12)
+
+
+def test_imu_rate_drops_keeps_every_eighth_sample_from_halfway(streams):
+    dropped = fault.imu_rate_drops(streams, keep_every=8, fraction=0.5)
+    imu = streams.recording.imu
+    middle = 0.5 * (streams.recording.mocap.t[0] + streams.recording.mocap.t[-1])
+    early, late = imu.t < middle, imu.t >= middle
+    kept = dropped.recording.imu.t
+    np.testing.assert_array_equal(kept[kept < middle], imu.t[early])
+    np.testing.assert_array_equal(kept[kept >= middle], imu.t[late][::8])
+    # 200 Hz becomes 25 Hz: every interval after the first late sample is 40 ms
+    np.testing.assert_allclose(np.diff(kept[kept >= middle]), 0.04, atol=1e-9)
+    assert dropped.recording.mocap is streams.recording.mocap
