@@ -704,7 +704,7 @@ class _KalmanEstimator:
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str:
         self._reckoning = self._monitor_state = None
-        prior = self._fusion.estimate(t) if self.monitor.has_gated_fix else None
+        prior = self._fusion.estimate(t) if self.monitor.wants_prior(t) else None
         outcome = self._fusion.update(t, position, quaternion)
         self.monitor.mocap(t, position, outcome, self._fusion, prior)
         if outcome.accepted:
@@ -716,7 +716,7 @@ class _KalmanEstimator:
         """Fuse a marker frame (:meth:`KalmanFusion.update_markers`); (reason, markers used,
         markers rejected). The monitor sees the markers' Kabsch origin as the frame's fix."""
         self._reckoning = self._monitor_state = None
-        prior = self._fusion.estimate(t) if self.monitor.has_gated_fix else None
+        prior = self._fusion.estimate(t) if self.monitor.wants_prior(t) else None
         outcome = self._fusion.update_markers(t, observed, body)
         origin = outcome.marker_origin
         self.monitor.mocap(t, None if origin is None else np.array(origin), outcome,

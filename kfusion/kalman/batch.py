@@ -187,7 +187,7 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
             if monitor is not None:
                 monitor.imu(stamp, accelerometer[index], gyroscope[index])
             continue
-        prior = fusion.estimate(t) if monitor is not None and monitor.has_gated_fix else None
+        prior = fusion.estimate(t) if monitor is not None and monitor.wants_prior(t) else None
         if observed is not None and body is not None:
             outcome = fusion.update_markers(
                 t, observed[index], body,
