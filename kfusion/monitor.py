@@ -620,9 +620,9 @@ class MonitorParameters:
             put 4.9 % of the Tracker's rows beyond the 99 % bound (up to 4.7x) without the
             rival, 0.3 % (1.2x) with it. The cost is the bound of the first 0.2 s after each
             re-acquisition: on the BROAD trials with gaps cut every 1-2 s, the tracked rows'
-            mean 99 % bound rose from 0.5-0.65 to 1.3-3.0 mm (median unchanged at 0.54-0.67,
-            90th percentile 0.6-0.7 -> 3.1-4.6 mm). A glitch longer than this is not covered
-            (0.5 s of 4 mm: 13.7 % of rows beyond the bound).
+            mean 99 % bound rose from 0.5-0.65 to 1.3-3.1 mm (median unchanged at 0.54-0.67,
+            90th percentile 0.6-0.7 -> 3.1-4.6 mm; trials 01, 21, 24). A glitch longer than
+            this is not covered (0.5 s of 4 mm: 13.7 % of rows beyond the bound).
         cause_std_scale: std scale above which a cause other than the mocap is named.
         early_max_std_scale: the refusal limit while fewer than ``minimum_shadow_gaps`` gaps
             are in (thin evidence: the matched scale is then about the largest row seen,
