@@ -895,7 +895,7 @@ class ConsistencyMonitor:
         """A mocap frame at t (s) after the main filter (``fusion``) processed it with
         ``outcome``; ``position`` (3,) m or None when occluded; ``prior``: the filter's
         estimate at t before this frame (needed only when :meth:`wants_prior`)."""
-        from kfusion.kalman.filter import ACCEPTED, GATED, USED_OUTCOMES
+        from kfusion.kalman.filter import ACCEPTED, GATED, REACQUIRED, USED_OUTCOMES
 
         if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
             self._nis.append(outcome.nis)
@@ -917,13 +917,16 @@ class ConsistencyMonitor:
                 # fused after gated fixes: the prediction it replaced stays a rival hypothesis
                 self._rival = (t, prior.position - np.asarray(position, dtype=float),
                                np.array(prior.position_covariance))
+            elif outcome.markers_used == 0 and outcome.kind in (ACCEPTED, REACQUIRED) \
+                    and prior is not None \
+                    and self.params.reacquisition_rival_s > 0 \
+                    and reacquired_after_gap(self._fix_horizon, self.params.settle_after_s):
+                # (its prior is known: an exact rival, also where the NIS would make it a step,
+                # for which the posterior cannot give the loose prediction back)
+                self._reacquisition_rival(t, position, prior)
             elif outcome.markers_used == 0 and \
                     outcome.nis > chi2_quantile(self.params.step_probability, 3):
                 self._step(t, position, fusion)
-            elif outcome.markers_used == 0 and outcome.kind == ACCEPTED and prior is not None \
-                    and self.params.reacquisition_rival_s > 0 \
-                    and reacquired_after_gap(self._fix_horizon, self.params.settle_after_s):
-                self._reacquisition_rival(t, position, prior)
             self._gated_fix = None
         elif outcome.kind == GATED and position is not None:
             self._gated_fix = np.array(position, dtype=float)
@@ -982,16 +985,22 @@ class ConsistencyMonitor:
         ``max_bridge_s``). A rigid body re-solved while its cluster re-appears can be off by a
         few mm for a few frames, and that step's onset is hidden in the gap: the fix agrees with
         the loose prediction and the fixes after it agree with each other, so no NIS shows it.
-        When the fixes jump back, that is a step (:meth:`_step`). Not counted in
-        :attr:`MonitorReport.steps`."""
+        When the fixes jump back, that is a step (:meth:`_step`). A fix at least
+        ``gate_min_innovation`` (1 cm) from the prediction, which the gate passed only because
+        the prediction had grown loose, is a jump or a swap as a gated one may be: its rival
+        lasts ``max_bridge_s`` (15 mm on the 20 frames after 0.5-1 s gaps: 7.4 % of the rows
+        beyond the bound, up to 32x, with 0.2 s). Not counted in :attr:`MonitorReport.steps`."""
         predicted = np.asarray(prior.position, dtype=float)
         covariance = np.asarray(prior.position_covariance, dtype=float)
         if not (np.isfinite(predicted).all() and np.isfinite(covariance).all()):
             return
-        noise = self._shadow.params.mocap_position_noise ** 2
-        self._keep_step(t, np.asarray(position, dtype=float) - predicted,
-                        0.5 * (covariance + covariance.T) + noise * np.eye(3),
-                        min(self.params.reacquisition_rival_s, self._shadow.params.max_bridge_s))
+        shadow = self._shadow.params
+        innovation = np.asarray(position, dtype=float) - predicted
+        limit = shadow.max_bridge_s
+        jump = float(innovation @ innovation) >= shadow.gate_min_innovation ** 2
+        self._keep_step(t, innovation, 0.5 * (covariance + covariance.T)
+                        + shadow.mocap_position_noise ** 2 * np.eye(3),
+                        limit if jump else min(self.params.reacquisition_rival_s, limit))
 
     def _keep_step(self, t: float, innovation: NDArray[np.float64],
                    covariance: NDArray[np.float64], lifetime_s: float) -> None:
@@ -1204,11 +1213,33 @@ class ConsistencyMonitor:
     def bridging_allowed(self) -> bool:
         """False when the shadow gaps need a larger std scale than ``max_std_scale``, or, while
         fewer than ``minimum_shadow_gaps`` gaps are in, one above ``early_max_std_scale`` (thin
-        evidence of a broken model: its scale is not yet known well enough to bridge on)."""
+        evidence of a broken model: its scale is not yet known well enough to bridge on); and
+        before ``recent_fixes`` fixes have been compared with the model's predictions (an
+        untested model: with the gravity sign flipped, a gap after the first 2-3 fixes was
+        bridged 800-940 mm off with a 40-50 mm bound, before any NIS could show it)."""
         if self._bridging_value is None:
-            self._bridging_value = bridging_allowed(self._std_scale(), self._scales.gaps,
-                                                    self.params)
+            self._bridging_value = self.model_tested and \
+                bridging_allowed(self._std_scale(), self._scales.gaps, self.params)
         return self._bridging_value
+
+    @property
+    def model_tested(self) -> bool:
+        """True once ``recent_fixes`` fixes have been compared with the model's predictions
+        (their NIS is in the window): before, :attr:`bridging_allowed` is False because the
+        model is untested, not because the data refused it."""
+        return len(self._nis) >= self.params.recent_fixes
+
+    def carry_evidence(self, other: ConsistencyMonitor) -> None:
+        """Take ``other``'s evidence about the model (the NIS window, the shadow gaps' scales,
+        their acceleration and clock evidence), not its state in time: the Tracker's
+        :meth:`kfusion.tracker.Tracker.reset` keeps what the data showed about a configuration
+        it does not change, so that a reset does not forget a refusal."""
+        self._nis = deque(other._nis, maxlen=self.params.nis_window)
+        self._scales = other._scales.copy()
+        self._innovation_scales = other._innovation_scales.copy()
+        self._accelerations = deque(other._accelerations, maxlen=self.params.nis_window)
+        self._clock_evidence = other._clock_evidence
+        self._forget_derived()
 
     def clock_offset(self) -> tuple[float, float] | None:
         """(offset s, 1-sigma s) of the IMU clock the shadow gaps show (positive: the IMU clock

@@ -513,6 +513,27 @@ def _three(where: str, name: str, value: object, unit: str) -> _Three:
     return x, y, z
 
 
+def _clock_time(reading: object, newest: float | None, tolerance_s: float) -> float:
+    """The time ``estimate()`` reads from the Tracker's ``clock`` (s): ``reading``, or the
+    ``newest`` fused sample's time when the reading is at most ``tolerance_s`` (s) behind it
+    (stamps a little ahead of the caller's clock). ValueError when the reading is not a finite
+    time, or further behind: a clock on another time base (``time.monotonic`` against stamps
+    in Unix time) would otherwise read "now" as the newest sample forever, and an estimate
+    would look current after the streams stopped."""
+    t = _time("estimate", reading)
+    if math.isnan(t) or t == -math.inf:
+        raise ValueError(f"estimate: clock() returned {t!r}: expected the current time in s on "
+                         f"the stamps' clock")
+    if newest is not None and not t >= newest:
+        if newest - t > tolerance_s:
+            raise ValueError(f"estimate: clock() reads {t!r} s, {newest - t:.6g} s behind the "
+                             f"newest sample ({newest!r} s), more than max_delay_s "
+                             f"({tolerance_s:g} s): the clock must give the time on the "
+                             f"stamps' clock")
+        return newest
+    return t
+
+
 def _time(where: str, t: object) -> float:
     """``t`` as a float; ValueError when it is not a real number (NaN/inf pass)."""
     if type(t) is float:
@@ -1293,7 +1314,8 @@ class Tracker:
         """The estimate at ``t``, the caller's current time in s on the stamps' clock.
 
         ``t`` may be omitted only for a tracker built with a ``clock``: the estimate is then at
-        ``clock()`` (or at the newest fused sample, if that is later). Without either there is
+        ``clock()`` (or at the newest fused sample, if that is later by at most
+        ``max_delay_s``). Without either there is
         no "now", and an estimate at the newest sample's time would look current after the
         streams stopped: ValueError. A later ``t`` than the newest sample extrapolates with the
         last IMU sample held (for at most ``imu_dropout_s``; later a gap is ``lost``) and ages
@@ -1302,7 +1324,8 @@ class Tracker:
 
         Raises:
             ValueError: ``t`` missing without a clock, not a real number, or earlier than the
-                newest fused sample.
+                newest fused sample; a ``clock()`` reading that is NaN or more than
+                ``max_delay_s`` behind the newest fused sample (a clock on another time base).
         """
         if self._pending:
             self._flush()
@@ -1312,9 +1335,8 @@ class Tracker:
                 raise ValueError("estimate: t: expected the current time in s (the stamps' "
                                  "clock), got none; pass estimate(now) or build the Tracker "
                                  "with clock=")
-            t = _time("estimate", self._clock())
-            if book.key is not None and not t >= book.key[0]:
-                t = book.key[0]
+            t = _clock_time(self._clock(), book.key[0] if book.key is not None else None,
+                            self.options.max_delay_s)
         else:
             t = _time("estimate", t)
             if book.key is not None and not t >= book.key[0]:
@@ -1410,10 +1432,15 @@ class Tracker:
     @_locked
     def reset(self) -> None:
         """Forget the state and the stream history, as if newly constructed; the health
-        counters keep counting (``health.resets`` counts the calls)."""
+        counters keep counting (``health.resets`` counts the calls), and the consistency
+        monitor keeps its evidence about the model (:meth:`kfusion.monitor.ConsistencyMonitor.
+        carry_evidence`: a refusal stays) as the online clock check keeps its verdict."""
         self._resets += 1
         self._flush()  # the deferred samples count before the state is forgotten
+        previous = getattr(self._estimator, "monitor", None)
         self._estimator = self._new_estimator()
+        if previous is not None:  # the data's verdict on the configuration stays
+            self._estimator.monitor.carry_evidence(previous)  # type: ignore[attr-defined]
         self._start_streams(keep_counters=True)
 
     @_locked

@@ -94,3 +94,52 @@ def test_the_smoother_refuses_with_the_filter(clock_written_wrong):
     assert np.all(result.status[~recording.mocap.visible] == "lost")
     np.testing.assert_array_equal(result.position[fixed], recording.mocap.position[fixed])
     assert _confidently_wrong(result.position, result.std, result.status, truth) <= 0.01
+
+
+def _early_gap(recording, after_fixes: int, frames: int = 30):
+    """``recording`` with no occlusion but one of ``frames`` frames after the first
+    ``after_fixes`` frames."""
+    mocap = recording.mocap
+    position = np.array(mocap.position)
+    position[after_fixes:after_fixes + frames] = np.nan
+    return dataclasses.replace(recording, mocap=dataclasses.replace(mocap, position=position))
+
+
+@pytest.mark.parametrize("after_fixes", [2, 3])
+def test_an_untested_model_does_not_bridge(after_fixes):
+    """Gravity given with the wrong sign and a gap after the first 2-3 fixes: before, the gap
+    was bridged 800-940 mm off with a 40-50 mm bound (no NIS could show it yet); now it is
+    lost until recent_fixes fixes have been compared with the predictions. A correct
+    configuration bridges a gap after 6 fixes."""
+    simulation = simulate("random_reach", seed=0, duration=8.0, occlusions=None)
+    truth = np.asarray(simulation.truth.position)
+    recording = simulation.recording
+    flipped = dataclasses.replace(recording, info=dataclasses.replace(
+        recording.info, gravity=-np.asarray(recording.info.gravity)))
+    gap = slice(after_fixes, after_fixes + 30)
+    run = _stream(_early_gap(flipped, after_fixes))
+    assert (run["status"][gap] == "lost").all()
+    assert _confidently_wrong(run["position"], run["std"], run["status"], truth) <= 0.01
+    clean = _stream(_early_gap(recording, 6))
+    assert (clean["status"][6:36] == "bridged").all()
+
+
+def test_a_reset_keeps_the_monitors_refusal(clock_written_wrong):
+    recording, _ = clock_written_wrong
+    tracker = Tracker.from_recording_info(recording.info)
+    imu, mocap = recording.imu, recording.mocap
+    mapped = imu.t + recording.info.imu_time_offset
+    for _, stream, index in merge_events(mapped.tolist(), mocap.t.tolist(), 0.0):
+        if stream == IMU_STREAM:
+            tracker.push_imu(imu.t[index], imu.accelerometer[index], imu.gyroscope[index])
+        else:
+            tracker.push_mocap(mocap.t[index], mocap.position[index], mocap.quaternion[index])
+    before = tracker.consistency
+    assert not before.bridging_allowed and before.shadow_gaps >= 10
+    tracker.reset()
+    # the evidence about the configuration stays (not only the untested model's refusal)
+    after = tracker.consistency
+    assert not after.bridging_allowed
+    assert (after.shadow_gaps, after.std_scale) == (before.shadow_gaps, before.std_scale)
+    assert after.nis.mean == before.nis.mean
+    assert tracker.health.resets == 1

@@ -338,6 +338,22 @@ def test_now_cannot_be_forgotten_and_a_clock_ages_the_estimate():
         Tracker(IDENTITY, GRAVITY, clock=3.0)  # type: ignore[arg-type]
 
 
+@pytest.mark.parametrize("reading", [math.nan, -math.inf, 0.999 - 0.1 - 1e-6, -1000.0])
+def test_a_clock_on_another_time_base_is_refused_not_read_as_now(reading):
+    """A clock behind the newest sample by more than max_delay_s (0.1 s), or NaN, would read
+    "now" as the newest sample forever (the estimate current after the streams stopped)."""
+    now = [1.0]
+    clocked = Tracker(IDENTITY, GRAVITY, clock=lambda: now[0])
+    feed_rest(clocked, 0.0, 1.0)  # newest sample 0.999 s
+    now[0] = reading
+    with pytest.raises(ValueError, match=r"estimate: clock\(\) (returned|reads)"):
+        clocked.estimate()
+    now[0] = 0.999 - 0.1 + 1e-6  # within max_delay_s: read at the newest sample
+    assert clocked.estimate().t == 0.999
+    now[0] = 5.0
+    assert clocked.estimate().status == LOST
+
+
 # ---------------------------------------------------------------------------------------------
 # Batch filter and smoother (kfusion track) with the IMU faults
 # ---------------------------------------------------------------------------------------------

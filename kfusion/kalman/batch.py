@@ -377,6 +377,9 @@ class _RowRecorder:
         bins = len(monitor.params.horizon_edges_s) if monitor is not None else 1
         self.scale_tables = np.ones((rows, bins))
         self.allowed = np.ones(rows, dtype=bool)
+        # (m,) True once the monitor had compared enough fixes with the model (model_tested):
+        # before, "not allowed" says untested, not refused
+        self.tested = np.ones(rows, dtype=bool)
         self.x = np.full((rows, size), np.nan)
         self.P = np.full((rows, size, size), np.nan)
         self.output_matrix = np.zeros((rows, 3, size))
@@ -421,6 +424,7 @@ class _RowRecorder:
         monitor = self.monitor
         assert monitor is not None
         self.allowed[row] = monitor.bridging_allowed
+        self.tested[row] = monitor.model_tested
         if not outcome.accepted:
             self.scale_tables[row] = monitor.scale_table()
         fix = None if self.allowed[row] else monitor.fix_only(outcome.t)
@@ -448,6 +452,7 @@ class _RowRecorder:
         recorder.fusion, recorder.monitor = fusion, None
         recorder.scale_tables = np.ones((rows, 1))
         recorder.allowed = np.ones(rows, dtype=bool)
+        recorder.tested = np.ones(rows, dtype=bool)
         recorder.rival_variance = np.zeros((rows, 3))
         recorder.fix_position = np.full((rows, 3), np.nan)
         recorder.fix_variance = np.full((rows, 3), np.nan)
