@@ -357,6 +357,7 @@ FAULTS: list[tuple[str, Fault, str]] = [
      faults.occlusion_edge_drift, "sim"),
     ("body 4 mm off on the 10 frames after each occlusion",
      lambda s: faults.occlusion_edge_offsets(s, 0.004, 10, "after"), "sim"),
+    ("mocap repeats the last pose through occlusions", faults.mocap_holds_last_pose, "sim"),
     ("IMU rate 8x lower from halfway, no anti-aliasing", faults.imu_rate_drops, "sim"),
     ("IMU clock 5 ms behind", lambda s: faults.imu_clock_offset(s, -0.005), "sim"),
     ("IMU clock 5 ms ahead", lambda s: faults.imu_clock_offset(s, 0.005), "sim"),

@@ -145,3 +145,17 @@ def test_imu_rate_drops_keeps_every_eighth_sample_from_halfway(streams):
     # 200 Hz becomes 25 Hz: every interval after the first late sample is 40 ms
     np.testing.assert_allclose(np.diff(kept[kept >= middle]), 0.04, atol=1e-9)
     assert dropped.recording.mocap is streams.recording.mocap
+
+
+def test_mocap_holds_last_pose_fills_every_occlusion_forward(streams):
+    held = fault.mocap_holds_last_pose(streams)
+    mocap = streams.recording.mocap
+    assert held.recording.mocap.visible.all()
+    for start, stop in occlusion_runs(mocap.visible):
+        for row in range(start, stop):
+            np.testing.assert_array_equal(held.recording.mocap.position[row],
+                                          mocap.position[start - 1])
+            np.testing.assert_array_equal(held.recording.mocap.quaternion[row],
+                                          mocap.quaternion[start - 1])
+    visible = mocap.visible
+    np.testing.assert_array_equal(held.recording.mocap.position[visible], mocap.position[visible])

@@ -189,6 +189,18 @@ def sub_gate_glitches(streams: Streams, size_m: float = 0.004, frames: int = 10,
     return _mocap(streams, position=position)
 
 
+def mocap_holds_last_pose(streams: Streams) -> Streams:
+    """Every occluded frame repeats the last visible frame's pose (a streaming client that
+    holds the last value, NatNet's untracked rigid body read without its valid flag, NaN
+    filled forward): no frame is NaN."""
+    mocap = streams.recording.mocap
+    position, quaternion = np.array(mocap.position), np.array(mocap.quaternion)
+    for row in range(1, len(position)):
+        if not mocap.visible[row]:
+            position[row], quaternion[row] = position[row - 1], quaternion[row - 1]
+    return _mocap(streams, position=position, quaternion=quaternion)
+
+
 def occlusion_edge_offsets(streams: Streams, size_m: float = 0.0015, frames: int = 3,
                            side: str = "before", seed: int = 0) -> Streams:
     """The rigid body solved ``size_m`` m off (a random direction per occlusion, drawn with
