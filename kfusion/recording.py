@@ -398,33 +398,6 @@ class Recording:
 # --------------------------------------------------------------------------------------------
 
 
-def held_frames(position: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """(m,) True where a frame's position (m, 3) m is finite and bit for bit the previous
-    frame's: a pose held through an occlusion (a streaming client repeating the last value,
-    NatNet's untracked rigid body read without its valid flag, NaN filled forward), which a
-    sensor with sub-millimetre noise never gives twice. The BROAD trials have none in 389,000
-    frames (the stationary trial 28 included)."""
-    position = np.asarray(position, dtype=float)
-    held = np.zeros(len(position), dtype=bool)
-    if len(position) > 1:
-        held[1:] = np.isfinite(position[1:]).all(axis=1) & (position[1:] == position[:-1]).all(
-            axis=1)
-    return held
-
-
-def without_held_frames(recording: Recording) -> Recording:
-    """``recording`` with its :func:`held_frames` occluded (position and quaternion NaN); the
-    same object when there are none."""
-    mocap = recording.mocap
-    held = held_frames(mocap.position)
-    if not held.any():
-        return recording
-    position, quaternion = np.array(mocap.position), np.array(mocap.quaternion)
-    position[held], quaternion[held] = np.nan, np.nan
-    return recording.with_mocap(dataclasses.replace(mocap, position=position,
-                                                    quaternion=quaternion))
-
-
 def occlusion_runs(visible: NDArray[np.bool_]) -> list[tuple[int, int]]:
     """Index ranges ``[start, stop)`` of consecutive occluded frames (``visible`` False)."""
     hidden = ~np.asarray(visible, dtype=bool)

@@ -188,9 +188,6 @@ TOO_LATE: Final = "too_late"
 BAD_QUATERNION: Final = "bad_quaternion"
 IMPLAUSIBLE_TIME: Final = "implausible_time"
 """A stamp implausibly far ahead of both streams (:class:`kfusion.streamhealth.TimeGuard`)."""
-HELD: Final = "held"
-"""A mocap position bit for bit the previous frame's: a pose held through an occlusion
-(:func:`kfusion.recording.held_frames`), fused as an occluded frame."""
 
 FIXED: Final = (ACCEPTED, REACQUIRED, INITIALISED)
 """Mocap outcomes whose fix was fused: the filter's own vocabulary
@@ -199,7 +196,7 @@ track``'s outcome column."""
 IMU_REJECTIONS: Final = (NON_FINITE, OUT_OF_ORDER, DUPLICATE, CONFLICTING_DUPLICATE, TOO_LATE,
                          IMPLAUSIBLE_TIME)
 MOCAP_REJECTIONS: Final = (GATED, NON_FINITE, BAD_QUATERNION, OUT_OF_ORDER, DUPLICATE,
-                           CONFLICTING_DUPLICATE, TOO_LATE, IMPLAUSIBLE_TIME, HELD)
+                           CONFLICTING_DUPLICATE, TOO_LATE, IMPLAUSIBLE_TIME)
 METHODS: Final = ("kalman", "baseline")
 DEFAULT_CONFIDENCE: Final = 0.99
 
@@ -220,8 +217,6 @@ class PushOutcome:
             ``saturated`` (IMU, fused but flagged), ``reacquired``,
             ``occluded``, ``gated``, ``non_finite``, ``out_of_order``, ``duplicate``,
             ``conflicting_duplicate``, ``too_late``, ``bad_quaternion``, ``implausible_time``.
-            A mocap position bit for bit the previous frame's is fused as occluded
-            (``occluded``) and counted in ``health.mocap_rejected["held"]``.
     """
 
     accepted: bool
@@ -1204,9 +1199,7 @@ class Tracker:
 
         Args:
             t: frame time, s.
-            position: (3,) rigid-body position, m, global frame; None or any NaN: occluded;
-                bit for bit the previous frame's: held through an occlusion, occluded too
-                (counted ``held``).
+            position: (3,) rigid-body position, m, global frame; None or any NaN: occluded.
             quaternion: (4,) body -> global [w, x, y, z], or None / NaN (position-only fix).
 
         Returns:
@@ -1240,17 +1233,10 @@ class Tracker:
                 return self._reject(stream, BAD_QUATERNION)
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (point, rotation))
-        pushed = (point, rotation)
-        held = stream.last_values is not None and not math.isnan(values[0]) \
-            and np.array_equal(point, stream.last_values[0])
-        if held:  # the previous frame's pose held through an occlusion: occluded
-            point, rotation = nan_position, np.full(4, np.nan)
         reason = self._fuse((t, MOCAP_STREAM, point, rotation, False, t))
         if reason is None:
             return self._reject(stream, TOO_LATE)
-        if held:
-            stream.rejected[HELD] += 1
-        stream.last_t, stream.last_values = t, pushed
+        stream.last_t, stream.last_values = t, (point, rotation)
         stream.accepted += 1
         self._watch.mocap(t)
         self._clock_watch.mocap(t, point, rotation, reason in FIXED)

@@ -31,7 +31,7 @@ from kfusion.conventions import LOST, TRACKED
 from kfusion.kalman import run_filter
 from kfusion.kalman.smoother import run_smoother
 from kfusion.recording import ImuSamples, MocapFrames, Recording
-from kfusion.simulate import OcclusionSpec, faults, simulate
+from kfusion.simulate import OcclusionSpec, simulate
 from kfusion.tracker import Tracker
 
 DURATION = 8.0
@@ -497,47 +497,3 @@ def test_time_guard_settled_means_check_accepts_and_changes_nothing() -> None:
             unchanged = guard.ahead == ahead and guard.behind == behind and guard.rejected == 0
             assert settled == (verdict == ACCEPT and unchanged), (t, ahead, behind)
     assert not TimeGuard().settled(0.0, -math.inf)  # no present yet: the full check
-
-
-# ---------------------------------------------------------------------------------------------
-# Poses held through occlusions (a client repeating the last value)
-# ---------------------------------------------------------------------------------------------
-
-
-def test_held_frames_by_hand():
-    from kfusion.recording import held_frames
-
-    position = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [np.nan] * 3,
-                         [np.nan] * 3, [0.1, 0.0, 1.0], [0.1, 0.0, 1.0 + 1e-12]])
-    assert held_frames(position).tolist() == [False, True, True, False, False, False, False]
-    assert held_frames(np.empty((0, 3))).tolist() == []
-
-
-def test_a_pose_held_through_occlusions_is_an_occlusion_in_batch_and_tracker():
-    """The mocap repeats the last visible pose through every occlusion (NaN filled forward):
-    before, the held pose was fused as a still body (4.5 % of rows beyond the bound, up to
-    12x, and after gaps longer than max_bridge_s the held pose was the re-acquisition: 24 %,
-    68x). Now the batch filter, the smoother and the Tracker read those frames as occluded:
-    the same bits as the recording with its occlusions."""
-    from test_batch_streaming import arrival_orders
-    from test_batch_streaming import stream_rows as streamed
-
-    simulation = simulate("random_reach", seed=1, duration=10.0,
-                          occlusions=OcclusionSpec(gap_range=(0.2, 0.4), spacing=1.5))
-    recording = simulation.recording
-    held = faults.mocap_holds_last_pose(faults.Streams.of(recording)).recording
-    held_rows = int((~recording.mocap.visible).sum())
-    assert held_rows >= 40 and held.mocap.visible.all()
-    for run in (run_filter, run_smoother):
-        expected, got = run(recording).result, run(held).result
-        np.testing.assert_array_equal(got.position, expected.position)
-        np.testing.assert_array_equal(got.std, expected.std)
-        np.testing.assert_array_equal(got.status, expected.status)
-    tracker = Tracker.from_recording_info(held.info)
-    rows = streamed(held, tracker, arrival_orders(held, 0.0)["natural"], 0.0)
-    occluded = Tracker.from_recording_info(recording.info)
-    expected_rows = streamed(recording, occluded, arrival_orders(recording, 0.0)["natural"], 0.0)
-    for key in ("position", "std"):
-        np.testing.assert_array_equal(rows[key], expected_rows[key])
-    assert tracker.health.mocap_rejected["held"] == held_rows
-    assert occluded.health.mocap_rejected["held"] == 0

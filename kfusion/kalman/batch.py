@@ -30,7 +30,7 @@ from kfusion.monitor import (
     MonitorReport,
     scale_beyond_evidence,
 )
-from kfusion.recording import Recording, on_mocap_clock, without_held_frames
+from kfusion.recording import Recording, on_mocap_clock
 from kfusion.streamhealth import FIX_TIMEOUT_S, tracking_status
 from kfusion.track_file import TrackResult
 
@@ -568,7 +568,6 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
     (:func:`measurement_engine`)."""
     check_engine(engine)
     engine = measurement_engine(engine, measurement)
-    recording = without_held_frames(recording)  # poses held through occlusions: occluded
     params = resolve_parameters(recording, params, overrides)
     watcher = make_monitor(recording, params, monitor, engine)
     # without a monitor the compiled engine runs the whole loop in one kernel; with one (it
