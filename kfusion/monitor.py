@@ -917,13 +917,14 @@ class ConsistencyMonitor:
                 # fused after gated fixes: the prediction it replaced stays a rival hypothesis
                 self._rival = (t, prior.position - np.asarray(position, dtype=float),
                                np.array(prior.position_covariance))
-            elif outcome.markers_used == 0 and outcome.kind in (ACCEPTED, REACQUIRED) \
-                    and prior is not None \
+            elif outcome.kind in (ACCEPTED, REACQUIRED) and prior is not None \
                     and self.params.reacquisition_rival_s > 0 \
                     and reacquired_after_gap(self._fix_horizon, self.params.settle_after_s):
-                # (its prior is known: an exact rival, also where the NIS would make it a step,
-                # for which the posterior cannot give the loose prediction back)
-                self._reacquisition_rival(t, position, prior)
+                # (its prior is known: an exact rival, also where the NIS makes it a step, for
+                # which the posterior cannot give a loose prediction back)
+                step = outcome.markers_used == 0 and \
+                    outcome.nis > chi2_quantile(self.params.step_probability, 3)
+                self._reacquisition_rival(t, position, prior, step)
             elif outcome.markers_used == 0 and \
                     outcome.nis > chi2_quantile(self.params.step_probability, 3):
                 self._step(t, position, fusion)
@@ -978,7 +979,7 @@ class ConsistencyMonitor:
         self._step_count += 1
 
     def _reacquisition_rival(self, t: float, position: NDArray[np.float64],
-                             prior: FilterEstimate) -> None:
+                             prior: FilterEstimate, step: bool = False) -> None:
         """A rigid-body fix at t (s), ``position`` (3,) m, ending a gap, fused with the prior
         estimate ``prior``: its prediction stays a rival like a step's (:meth:`_step`), whatever
         the NIS, with ``y = z - p-`` and ``S = P- + R``, for ``reacquisition_rival_s`` (at most
@@ -987,9 +988,11 @@ class ConsistencyMonitor:
         the loose prediction and the fixes after it agree with each other, so no NIS shows it.
         When the fixes jump back, that is a step (:meth:`_step`). A fix at least
         ``gate_min_innovation`` (1 cm) from the prediction, which the gate passed only because
-        the prediction had grown loose, is a jump or a swap as a gated one may be: its rival
-        lasts ``max_bridge_s`` (15 mm on the 20 frames after 0.5-1 s gaps: 7.4 % of the rows
-        beyond the bound, up to 32x, with 0.2 s). Not counted in :attr:`MonitorReport.steps`."""
+        the prediction had grown loose, is a jump or a swap as a gated one may be, and a fix
+        whose NIS makes it a ``step`` is one: their rivals last ``max_bridge_s``, as a step's
+        (15 mm on the 20 frames after 0.5-1 s gaps: 7.4 % of the rows beyond the bound, up to
+        32x, with 0.2 s), and a step is counted in :attr:`MonitorReport.steps`. Marker-level
+        fixes (``position`` their Kabsch origin) are kept the same way."""
         predicted = np.asarray(prior.position, dtype=float)
         covariance = np.asarray(prior.position_covariance, dtype=float)
         if not (np.isfinite(predicted).all() and np.isfinite(covariance).all()):
@@ -997,10 +1000,11 @@ class ConsistencyMonitor:
         shadow = self._shadow.params
         innovation = np.asarray(position, dtype=float) - predicted
         limit = shadow.max_bridge_s
-        jump = float(innovation @ innovation) >= shadow.gate_min_innovation ** 2
+        jump = step or float(innovation @ innovation) >= shadow.gate_min_innovation ** 2
         self._keep_step(t, innovation, 0.5 * (covariance + covariance.T)
                         + shadow.mocap_position_noise ** 2 * np.eye(3),
                         limit if jump else min(self.params.reacquisition_rival_s, limit))
+        self._step_count += step
 
     def _keep_step(self, t: float, innovation: NDArray[np.float64],
                    covariance: NDArray[np.float64], lifetime_s: float) -> None:
@@ -1228,18 +1232,6 @@ class ConsistencyMonitor:
         (their NIS is in the window): before, :attr:`bridging_allowed` is False because the
         model is untested, not because the data refused it."""
         return len(self._nis) >= self.params.recent_fixes
-
-    def carry_evidence(self, other: ConsistencyMonitor) -> None:
-        """Take ``other``'s evidence about the model (the NIS window, the shadow gaps' scales,
-        their acceleration and clock evidence), not its state in time: the Tracker's
-        :meth:`kfusion.tracker.Tracker.reset` keeps what the data showed about a configuration
-        it does not change, so that a reset does not forget a refusal."""
-        self._nis = deque(other._nis, maxlen=self.params.nis_window)
-        self._scales = other._scales.copy()
-        self._innovation_scales = other._innovation_scales.copy()
-        self._accelerations = deque(other._accelerations, maxlen=self.params.nis_window)
-        self._clock_evidence = other._clock_evidence
-        self._forget_derived()
 
     def clock_offset(self) -> tuple[float, float] | None:
         """(offset s, 1-sigma s) of the IMU clock the shadow gaps show (positive: the IMU clock

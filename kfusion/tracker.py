@@ -527,9 +527,9 @@ def _clock_time(reading: object, newest: float | None, tolerance_s: float) -> fl
     if newest is not None and not t >= newest:
         if newest - t > tolerance_s:
             raise ValueError(f"estimate: clock() reads {t!r} s, {newest - t:.6g} s behind the "
-                             f"newest sample ({newest!r} s), more than max_delay_s "
-                             f"({tolerance_s:g} s): the clock must give the time on the "
-                             f"stamps' clock")
+                             f"newest sample ({newest!r} s), more than the larger of "
+                             f"max_delay_s and fix_timeout_s ({tolerance_s:g} s): the clock "
+                             f"must give the time on the stamps' clock")
         return newest
     return t
 
@@ -1314,8 +1314,8 @@ class Tracker:
         """The estimate at ``t``, the caller's current time in s on the stamps' clock.
 
         ``t`` may be omitted only for a tracker built with a ``clock``: the estimate is then at
-        ``clock()`` (or at the newest fused sample, if that is later by at most
-        ``max_delay_s``). Without either there is
+        ``clock()`` (or at the newest fused sample, if that is later by at most the larger of
+        ``max_delay_s`` and ``fix_timeout_s``). Without either there is
         no "now", and an estimate at the newest sample's time would look current after the
         streams stopped: ValueError. A later ``t`` than the newest sample extrapolates with the
         last IMU sample held (for at most ``imu_dropout_s``; later a gap is ``lost``) and ages
@@ -1324,8 +1324,9 @@ class Tracker:
 
         Raises:
             ValueError: ``t`` missing without a clock, not a real number, or earlier than the
-                newest fused sample; a ``clock()`` reading that is NaN or more than
-                ``max_delay_s`` behind the newest fused sample (a clock on another time base).
+                newest fused sample; a ``clock()`` reading that is NaN or more than the larger
+                of ``max_delay_s`` and ``fix_timeout_s`` behind the newest fused sample (a
+                clock on another time base).
         """
         if self._pending:
             self._flush()
@@ -1336,7 +1337,7 @@ class Tracker:
                                  "clock), got none; pass estimate(now) or build the Tracker "
                                  "with clock=")
             t = _clock_time(self._clock(), book.key[0] if book.key is not None else None,
-                            self.options.max_delay_s)
+                            max(self.options.max_delay_s, self.options.fix_timeout_s))
         else:
             t = _time("estimate", t)
             if book.key is not None and not t >= book.key[0]:
@@ -1432,15 +1433,14 @@ class Tracker:
     @_locked
     def reset(self) -> None:
         """Forget the state and the stream history, as if newly constructed; the health
-        counters keep counting (``health.resets`` counts the calls), and the consistency
-        monitor keeps its evidence about the model (:meth:`kfusion.monitor.ConsistencyMonitor.
-        carry_evidence`: a refusal stays) as the online clock check keeps its verdict."""
+        counters keep counting (``health.resets`` counts the calls). The consistency monitor
+        starts afresh too: nothing is bridged until 5 fixes have tested the model again
+        (:attr:`kfusion.monitor.ConsistencyMonitor.model_tested`), so a gross configuration
+        error is refused again at once, and a transient fault's evidence does not outlive the
+        reset."""
         self._resets += 1
         self._flush()  # the deferred samples count before the state is forgotten
-        previous = getattr(self._estimator, "monitor", None)
         self._estimator = self._new_estimator()
-        if previous is not None:  # the data's verdict on the configuration stays
-            self._estimator.monitor.carry_evidence(previous)  # type: ignore[attr-defined]
         self._start_streams(keep_counters=True)
 
     @_locked

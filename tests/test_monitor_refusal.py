@@ -124,7 +124,9 @@ def test_an_untested_model_does_not_bridge(after_fixes):
     assert (clean["status"][6:36] == "bridged").all()
 
 
-def test_a_reset_keeps_the_monitors_refusal(clock_written_wrong):
+def test_a_reset_tests_the_model_again(clock_written_wrong):
+    """After reset() the monitor starts afresh (a transient fault's evidence does not outlive
+    it), but nothing is bridged until 5 fixes have tested the model again."""
     recording, _ = clock_written_wrong
     tracker = Tracker.from_recording_info(recording.info)
     imu, mocap = recording.imu, recording.mocap
@@ -134,12 +136,8 @@ def test_a_reset_keeps_the_monitors_refusal(clock_written_wrong):
             tracker.push_imu(imu.t[index], imu.accelerometer[index], imu.gyroscope[index])
         else:
             tracker.push_mocap(mocap.t[index], mocap.position[index], mocap.quaternion[index])
-    before = tracker.consistency
-    assert not before.bridging_allowed and before.shadow_gaps >= 10
+    assert not tracker.consistency.bridging_allowed
     tracker.reset()
-    # the evidence about the configuration stays (not only the untested model's refusal)
     after = tracker.consistency
-    assert not after.bridging_allowed
-    assert (after.shadow_gaps, after.std_scale) == (before.shadow_gaps, before.std_scale)
-    assert after.nis.mean == before.nis.mean
+    assert not after.bridging_allowed and after.shadow_gaps == 0
     assert tracker.health.resets == 1

@@ -270,6 +270,15 @@ def test_a_fix_ending_a_gap_keeps_its_prediction_as_a_rival_by_hand():
                                rtol=1e-12)
     assert not monitor.has_rivals(t + life + 1e-6)
     assert monitor.report().steps == 0
+    # a fix ending a gap with an NIS beyond the step quantile is a step: its rival lasts
+    # max_bridge_s, and it is counted
+    limit = KalmanParameters.from_profiles("mpu9255").max_bridge_s
+    t += 0.3
+    monitor.mocap(t, np.zeros(3), UpdateOutcome(t, ACCEPTED, 80.0),
+                  _Posterior(fusion, np.zeros(3), r / 2 * np.eye(3)), prior)
+    np.testing.assert_allclose(monitor.cover_rivals(t + limit, np.zeros(3), zeros), expected,
+                               rtol=1e-12)
+    assert monitor.report().steps == 1
     # turned off: neither prior nor rival
     off, fusion_off, _ = _monitor_with_fixes()
     off.params = MonitorParameters(reacquisition_rival_s=0.0)

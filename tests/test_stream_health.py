@@ -352,6 +352,15 @@ def test_a_clock_on_another_time_base_is_refused_not_read_as_now(reading):
     assert clocked.estimate().t == 0.999
     now[0] = 5.0
     assert clocked.estimate().status == LOST
+    # without a reorder window (max_delay_s 0) a clock a little behind the stamps still reads
+    # as the newest sample (up to fix_timeout_s, 0.05 s)
+    now[0] = 0.999 - 0.0005
+    strict = Tracker(IDENTITY, GRAVITY, clock=lambda: now[0], options={"max_delay_s": 0.0})
+    feed_rest(strict, 0.0, 1.0)
+    assert strict.estimate().t == 0.999
+    now[0] = 0.999 - 0.05 - 1e-6
+    with pytest.raises(ValueError, match=r"fix_timeout_s \(0.05 s\)"):
+        strict.estimate()
 
 
 # ---------------------------------------------------------------------------------------------
