@@ -859,6 +859,7 @@ class ConsistencyMonitor:
         self._steps: tuple[tuple[float, NDArray[np.float64], NDArray[np.float64], float],
                            ...] = ()
         self._step_count = 0  # fixes taken as steps (MonitorReport.steps)
+        self._tested_fixes = 0  # fixes compared with a prediction (model_tested)
 
     # -------------------------------------------------------------- events
 
@@ -897,6 +898,9 @@ class ConsistencyMonitor:
         estimate at t before this frame (needed only when :meth:`wants_prior`)."""
         from kfusion.kalman.filter import ACCEPTED, GATED, REACQUIRED, USED_OUTCOMES
 
+        if outcome.kind in (ACCEPTED, REACQUIRED) and math.isfinite(outcome.nis):
+            self._tested_fixes += 1  # compared with a prediction (model_tested)
+            self._bridging_value = None
         if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
             self._nis.append(outcome.nis)
             self._forget_derived()
@@ -1229,9 +1233,10 @@ class ConsistencyMonitor:
     @property
     def model_tested(self) -> bool:
         """True once ``recent_fixes`` fixes have been compared with the model's predictions
-        (their NIS is in the window): before, :attr:`bridging_allowed` is False because the
-        model is untested, not because the data refused it."""
-        return len(self._nis) >= self.params.recent_fixes
+        (``accepted``, or ``reacquired`` after a long gap: a body seen one frame every 0.6 s
+        is tested too): before, :attr:`bridging_allowed` is False because the model is
+        untested, not because the data refused it."""
+        return self._tested_fixes >= self.params.recent_fixes
 
     def clock_offset(self) -> tuple[float, float] | None:
         """(offset s, 1-sigma s) of the IMU clock the shadow gaps show (positive: the IMU clock

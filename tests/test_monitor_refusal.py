@@ -141,3 +141,21 @@ def test_a_reset_tests_the_model_again(clock_written_wrong):
     after = tracker.consistency
     assert not after.bridging_allowed and after.shadow_gaps == 0
     assert tracker.health.resets == 1
+
+
+def test_a_sparsely_seen_body_is_tested_by_its_reacquisitions():
+    """A body seen one frame in 60 (0.6 s apart, each fix a re-acquisition after a long gap):
+    the re-acquired fixes are compared with the predictions too, so after 5 of them the gaps
+    are bridged again (counting accepted fixes only left 98 % of the rows lost)."""
+    simulation = simulate("random_reach", seed=0, duration=20.0, occlusions=None)
+    recording = simulation.recording
+    mocap = recording.mocap
+    position = np.array(mocap.position)
+    hidden = np.arange(len(position)) % 60 != 0
+    position[hidden] = np.nan
+    sparse = dataclasses.replace(recording,
+                                 mocap=dataclasses.replace(mocap, position=position))
+    run = _stream(sparse)
+    assert (run["status"] == "bridged").mean() > 0.5
+    truth = np.asarray(simulation.truth.position)
+    assert _confidently_wrong(run["position"], run["std"], run["status"], truth) <= 0.01
