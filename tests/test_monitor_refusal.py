@@ -159,3 +159,21 @@ def test_a_sparsely_seen_body_is_tested_by_its_reacquisitions():
     assert (run["status"] == "bridged").mean() > 0.5
     truth = np.asarray(simulation.truth.position)
     assert _confidently_wrong(run["position"], run["std"], run["status"], truth) <= 0.01
+
+
+def test_the_smoother_does_not_trust_a_model_no_fix_tested():
+    """Four fixes in a whole recording (the model never tested): the smoother shows the fixes
+    alone and nothing between them, as when refused (before, with the mount given as the
+    identity, 31 % of its rows were beyond the bound)."""
+    simulation = simulate("random_reach", seed=0, duration=8.0, occlusions=None)
+    recording = simulation.recording
+    mocap = recording.mocap
+    position = np.array(mocap.position)
+    seen = np.zeros(len(position), dtype=bool)
+    seen[[0, 200, 400, 600]] = True
+    position[~seen] = np.nan
+    sparse = dataclasses.replace(recording,
+                                 mocap=dataclasses.replace(mocap, position=position))
+    result = run_smoother(sparse).result
+    assert (result.status[~seen] == "lost").all()
+    np.testing.assert_array_equal(result.position[seen], position[seen])

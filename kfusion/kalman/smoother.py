@@ -514,9 +514,10 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                     + fix_residual_rivals(fixed, recording.mocap.position - position, noise,
                                           watcher.params.confidence))
     # the smoothed rows are built on the IMU model wherever they are: when the hold-out or the
-    # forward monitor (anywhere in the recording, once it had tested the model) refused it, a
-    # row with a fix is that fix alone and every other row is lost
-    trusted = (holdout is None or bool(allowed.all())) and \
+    # forward monitor (anywhere in the recording, once it had tested the model) refused it, or
+    # the model was never tested (too few fixes), a row with a fix is that fix alone and every
+    # other row is lost
+    trusted = (holdout is None or bool(allowed.all())) and bool(recorder.tested.any()) and \
         bool(recorder.allowed[recorder.tested].all())
     if not trusted:
         fix_position = np.where(fixed[:, None], recording.mocap.position, np.nan)
