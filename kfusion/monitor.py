@@ -898,8 +898,9 @@ class ConsistencyMonitor:
         estimate at t before this frame (needed only when :meth:`wants_prior`)."""
         from kfusion.kalman.filter import ACCEPTED, GATED, REACQUIRED, USED_OUTCOMES
 
-        if outcome.kind in (ACCEPTED, REACQUIRED) and math.isfinite(outcome.nis):
-            self._tested_fixes += 1  # compared with a prediction (model_tested)
+        if outcome.kind in (ACCEPTED, REACQUIRED) and math.isfinite(outcome.nis) \
+                and not self.model_tested and self._informative(t, fusion):
+            self._tested_fixes += 1  # compared with a tight prediction (model_tested)
             self._bridging_value = None
         if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
             self._nis.append(outcome.nis)
@@ -1232,11 +1233,26 @@ class ConsistencyMonitor:
 
     @property
     def model_tested(self) -> bool:
-        """True once ``recent_fixes`` fixes have been compared with the model's predictions
-        (``accepted``, or ``reacquired`` after a long gap: a body seen one frame every 0.6 s
-        is tested too): before, :attr:`bridging_allowed` is False because the model is
-        untested, not because the data refused it."""
+        """True once ``recent_fixes`` fixes have been compared with predictions tight enough
+        to test the model (:meth:`_informative`; ``accepted`` or ``reacquired``): before,
+        :attr:`bridging_allowed` is False because the model is untested, not because the data
+        refused it. Right after the first fix (or a reset) the velocity is barely known, the
+        predictions are loose and their NIS small whatever the model: with the IMU rotated
+        90° on the forearm, the first 5 fixes after a reset let a gap be bridged 590 mm off
+        with a 35 mm bound. A body seen too rarely for a tight prediction (one frame in 0.6 s)
+        is never tested, and never bridged."""
         return self._tested_fixes >= self.params.recent_fixes
+
+    def _informative(self, t: float, fusion: KalmanFusion) -> bool:
+        """True when the fix just fused at t (s) was predicted tightly enough to test the
+        model: the update's gain ``K = P+ R^-1`` (position block, R = r I) has its largest
+        eigenvalue at most 0.9, i.e. the prediction's covariance was at most 9 R
+        (:func:`innovation_from_posterior`'s limit)."""
+        noise = self._shadow.params.mocap_position_noise ** 2
+        covariance = np.asarray(fusion.estimate(t).position_covariance, dtype=float)
+        if not (noise > 0 and np.isfinite(covariance).all()):
+            return False
+        return float(np.linalg.eigvalsh(0.5 * (covariance + covariance.T))[-1]) <= 0.9 * noise
 
     def clock_offset(self) -> tuple[float, float] | None:
         """(offset s, 1-sigma s) of the IMU clock the shadow gaps show (positive: the IMU clock
