@@ -770,7 +770,8 @@ class _KalmanEstimator:
                 return None
             position, covariance = fix
             covariance = self.monitor.cover_rivals(t, position, covariance)
-            return _Reading(position, step.velocity, covariance, np.sqrt(np.diag(covariance)))
+            return _Reading(position, step.velocity, 0.5 * (covariance + covariance.T),
+                            np.sqrt(np.diag(covariance)))
         if step.time_since_fix > 0.0:  # in a gap: the monitor's scale
             scale = self.monitor.variance_scale(step.time_since_fix)
             covariance = covariance * scale
