@@ -883,13 +883,14 @@ class ConsistencyMonitor:
         (``predict_valid``), so a caller may predict :attr:`gap_shadow` with it."""
         return hasattr(self._shadow, "predict_valid")
 
-    def wants_prior(self, t: float) -> bool:
-        """True when :meth:`mocap` needs the filter's estimate before a frame at t (s): a fix
-        was gated since the last fused one, or the frame would end a gap
+    def wants_prior(self, t: float, seen: bool) -> bool:
+        """True when :meth:`mocap` needs the filter's estimate before a frame at t (s) that
+        carries a fix (``seen``: a visible position or markers; a frame without one never
+        uses it): a fix was gated since the last fused one, or the frame would end a gap
         (:func:`reacquired_after_gap`; see :meth:`cover_rivals`)."""
-        return self._gated_fix is not None or (
+        return seen and (self._gated_fix is not None or (
             self._last_fix is not None and self.params.reacquisition_rival_s > 0
-            and reacquired_after_gap(t - self._last_fix[0], self.params.settle_after_s))
+            and reacquired_after_gap(t - self._last_fix[0], self.params.settle_after_s)))
 
     def mocap(self, t: float, position: NDArray[np.float64] | None, outcome: UpdateOutcome,
               fusion: KalmanFusion, prior: FilterEstimate | None = None) -> None:

@@ -725,7 +725,8 @@ class _KalmanEstimator:
 
     def update(self, t: float, position: NDArray | None, quaternion: NDArray | None) -> str:
         self._reckoning = self._monitor_state = None
-        prior = self._fusion.estimate(t) if self.monitor.wants_prior(t) else None
+        prior = self._fusion.estimate(t) if self.monitor.wants_prior(t, position is not None) \
+            else None
         outcome = self._fusion.update(t, position, quaternion)
         self.monitor.mocap(t, position, outcome, self._fusion, prior)
         if outcome.accepted:
@@ -737,7 +738,8 @@ class _KalmanEstimator:
         """Fuse a marker frame (:meth:`KalmanFusion.update_markers`); (reason, markers used,
         markers rejected). The monitor sees the markers' Kabsch origin as the frame's fix."""
         self._reckoning = self._monitor_state = None
-        prior = self._fusion.estimate(t) if self.monitor.wants_prior(t) else None
+        seen = bool(np.isfinite(observed).any())
+        prior = self._fusion.estimate(t) if self.monitor.wants_prior(t, seen) else None
         outcome = self._fusion.update_markers(t, observed, body)
         origin = outcome.marker_origin
         self.monitor.mocap(t, None if origin is None else np.array(origin), outcome,

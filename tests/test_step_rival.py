@@ -248,17 +248,17 @@ def test_a_fix_ending_a_gap_keeps_its_prediction_as_a_rival_by_hand():
     t = 0.0
     for _ in range(5):
         t += 0.01
-        assert not monitor.wants_prior(t)
+        assert not monitor.wants_prior(t, True)
         fix(t, [0.0, 0.0, 0.0])
     # one missing frame (20 ms) is no gap: no prior wanted, no rival
     t += 0.02
-    assert not monitor.wants_prior(t)
+    assert not monitor.wants_prior(t, True)
     fix(t, [0.0, 0.0, 0.0])
     assert not monitor.has_rivals(t)
     # a 0.3 s gap: the prediction, 3 mm from the fix with P- = 4 R, stays a rival:
     # P' = P + d d^T + (P- + R)
     t += 0.3
-    assert monitor.wants_prior(t)
+    assert monitor.wants_prior(t, True) and not monitor.wants_prior(t, False)
     prior = SimpleNamespace(position=np.array([0.003, 0.0, 0.0]),
                             position_covariance=4 * r * np.eye(3))
     fix(t, [0.0, 0.0, 0.0], prior)
@@ -284,7 +284,7 @@ def test_a_fix_ending_a_gap_keeps_its_prediction_as_a_rival_by_hand():
     off.params = MonitorParameters(reacquisition_rival_s=0.0)
     off.mocap(0.01, np.zeros(3), UpdateOutcome(0.01, ACCEPTED, 3.0),
               _Posterior(fusion_off, np.zeros(3), r / 2 * np.eye(3)))
-    assert not off.wants_prior(0.5)
+    assert not off.wants_prior(0.5, True)
     off.mocap(0.5, np.zeros(3), UpdateOutcome(0.5, ACCEPTED, 3.0),
               _Posterior(fusion_off, np.zeros(3), r / 2 * np.eye(3)), prior)
     assert not off.has_rivals(0.5)

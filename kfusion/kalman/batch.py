@@ -187,7 +187,10 @@ def process_recording(recording: Recording, fusion: KalmanFusion,
             if monitor is not None:
                 monitor.imu(stamp, accelerometer[index], gyroscope[index])
             continue
-        prior = fusion.estimate(t) if monitor is not None and monitor.wants_prior(t) else None
+        seen = visible[index] if observed is None or body is None \
+            else bool(np.isfinite(observed[index]).any())  # the frame carries a fix
+        prior = fusion.estimate(t) if monitor is not None and monitor.wants_prior(t, seen) \
+            else None
         if observed is not None and body is not None:
             outcome = fusion.update_markers(
                 t, observed[index], body,

@@ -183,7 +183,7 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
     for row in range(len(times)):
         t = times[row]
         prior = None
-        if monitor.wants_prior(t):  # the filter's estimate before this frame
+        if monitor.wants_prior(t, shown[row]):  # the filter's estimate before this frame
             before.restore(CompiledSnapshot(configuration,
                                             checkpoints.state_before(events[row]),
                                             _no_counters()))
