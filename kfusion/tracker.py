@@ -292,6 +292,10 @@ class Health:
         resets: calls to :meth:`Tracker.reset`.
         orientation_gated: mocap orientations rejected by the gate against the gyroscope (the
             fix's position was still used; Kalman only).
+        held_poses: frames that repeated the previous frame's pose bit for bit while the IMU
+            showed the body turning or moving: a pose held through an occlusion, read as
+            occluded (counted in ``mocap_occluded`` too;
+            :func:`kfusion.streamhealth.held_pose`; Kalman only).
         time_rebases: times consistent samples showed the clock really jumped (or the newest
             time was itself a glitch) and the streams restarted from the new time
             (:class:`kfusion.streamhealth.TimeGuard`).
@@ -329,6 +333,7 @@ class Health:
     replays: int
     resets: int
     orientation_gated: int = 0
+    held_poses: int = 0
     time_rebases: int = 0
     markers_used: int = 0
     markers_rejected: int = 0
@@ -589,6 +594,8 @@ class _Estimator(Protocol):
 
     def orientation_gated(self) -> int: ...
 
+    def held_poses(self) -> int: ...
+
     def snapshot(self) -> object:
         """The whole state, taken at mocap rate for the Tracker's checkpoints: keep it cheap."""
 
@@ -643,6 +650,9 @@ class _BaselineEstimator:
                                     self._outage_since_fix)
 
     def orientation_gated(self) -> int:
+        return 0
+
+    def held_poses(self) -> int:
         return 0
 
     def read(self, t: float, trust_model: bool = True,
@@ -807,6 +817,9 @@ class _KalmanEstimator:
 
     def orientation_gated(self) -> int:
         return int(self._fusion.counters["orientation_gated"])
+
+    def held_poses(self) -> int:
+        return int(self._fusion.counters["held_poses"])
 
     def snapshot(self) -> object:
         monitor = self.monitor
@@ -1425,6 +1438,7 @@ class Tracker:
             longest_gap_s=gap, lost_transitions=counts.lost_transitions,
             state_resets=counts.state_resets, replays=self._replays, resets=self._resets,
             orientation_gated=self._estimator.orientation_gated(),
+            held_poses=self._estimator.held_poses(),
             time_rebases=self._guard.rebases, markers_used=counts.markers_used,
             markers_rejected=counts.markers_rejected,
             clock_offset_s=math.nan if clock is None else clock.offset_s,

@@ -31,7 +31,7 @@ from kfusion.conventions import LOST, TRACKED
 from kfusion.kalman import run_filter
 from kfusion.kalman.smoother import run_smoother
 from kfusion.recording import ImuSamples, MocapFrames, Recording
-from kfusion.simulate import OcclusionSpec, simulate
+from kfusion.simulate import OcclusionSpec, faults, simulate
 from kfusion.tracker import Tracker
 
 DURATION = 8.0
@@ -506,3 +506,126 @@ def test_time_guard_settled_means_check_accepts_and_changes_nothing() -> None:
             unchanged = guard.ahead == ahead and guard.behind == behind and guard.rejected == 0
             assert settled == (verdict == ACCEPT and unchanged), (t, ahead, behind)
     assert not TimeGuard().settled(0.0, -math.inf)  # no present yet: the full check
+
+
+# ---------------------------------------------------------------------------------------------
+# Poses held through occlusions (a client repeating the last value): the IMU's testimony
+# ---------------------------------------------------------------------------------------------
+
+GATE = 21.107  # chi-square(3) at 0.9999, the default gate
+
+
+def test_repeats_frame_by_hand():
+    from kfusion.streamhealth import repeats_frame
+
+    p, q = np.array([0.1, 0.2, 1.0]), np.array([1.0, 0.0, 0.0, 0.0])
+    assert repeats_frame(p, q, (p.copy(), q.copy()))
+    assert repeats_frame(p, None, (p.copy(), None))
+    assert not repeats_frame(p, q, (p.copy(), None))  # one with, one without a quaternion
+    assert not repeats_frame(p, None, (p.copy(), q))
+    assert not repeats_frame(p, q, (p + [0.0, 0.0, 1e-12], q))
+    assert not repeats_frame(p, q, (p, np.array([0.0, 1.0, 0.0, 0.0])))
+    assert not repeats_frame(p, q, None)  # the previous frame was occluded
+
+
+def test_held_pose_by_hand():
+    """Turned: Var(r) = sigma_g^2 T + P_bb T^2 per axis; with sigma_g = 0.01 rad/s/sqrt(Hz),
+    P_bb = 1e-4 (rad/s)^2 and T = 0.1 s, Var = 1e-5 + 1e-6 = 1.1e-5, so a turn of 0.015 rad
+    gives 2.25e-4 / 1.1e-5 = 20.5 (still) and 0.016 rad 23.3 (held). Moving: v^T P_vv^-1 v
+    with P_vv = 1e-6 I: 4.5 mm/s gives 20.25 (still), 4.7 mm/s 22.1 (held)."""
+    from kfusion.streamhealth import held_pose
+
+    still_v, still_P = np.zeros(3), 1e-6 * np.eye(3)
+    assert not held_pose((0.015, 0.0, 0.0), 0.1, 0.01, 1e-4, still_v, still_P, GATE)
+    assert held_pose((0.0, 0.016, 0.0), 0.1, 0.01, 1e-4, still_v, still_P, GATE)
+    # the angle floor (1e-3 rad): a sharp gyroscope does not call a tiny turn motion
+    assert not held_pose((9e-4, 0.0, 0.0), 0.1, 1e-6, 0.0, still_v, still_P, GATE)
+    assert held_pose((2e-3, 0.0, 0.0), 0.1, 1e-6, 0.0, still_v, still_P, GATE)
+    no_turn = (0.0, 0.0, 0.0)
+    assert not held_pose(no_turn, 0.1, 0.01, 1e-4, [0.0045, 0.0, 0.0], still_P, GATE)
+    assert held_pose(no_turn, 0.1, 0.01, 1e-4, [0.0, 0.0, -0.0047], still_P, GATE)
+    # the speed floor (1 mm/s) and a singular covariance
+    assert not held_pose(no_turn, 0.1, 0.01, 1e-4, [9e-4, 0.0, 0.0], 1e-12 * np.eye(3), GATE)
+    assert not held_pose(no_turn, 0.1, 0.01, 1e-4, [0.1, 0.0, 0.0], np.zeros((3, 3)), GATE)
+    # gating off (an infinite threshold): never held
+    assert not held_pose((1.0, 0.0, 0.0), 0.1, 0.01, 1e-4, [1.0, 0, 0], still_P, math.inf)
+
+
+def held_recording(seed: int = 1, duration: float = 10.0) -> tuple[Recording, Recording]:
+    simulation = simulate("random_reach", seed=seed, imu="mpu9255", duration=duration,
+                          occlusions=OcclusionSpec(gap_range=(0.2, 0.4), spacing=1.5))
+    recording = simulation.recording
+    return recording, faults.mocap_holds_last_pose(faults.Streams.of(recording)).recording
+
+
+@pytest.mark.parametrize("engine", ["filterpy", "compiled"])
+def test_a_pose_held_while_the_body_moves_is_read_as_occluded(engine):
+    """The mocap repeats the last visible pose through every occlusion (NaN filled forward).
+    Fused as a still body, the held pose gave 4.3 % of rows beyond the 99 % bound, up to 64x
+    (benchmarks/failsafe.py). Every repeat while the body really moved more than 2 mm since
+    the held frame is now read as occluded (held_poses), and the frames the mocap really saw
+    are fused as before."""
+    recording, held = held_recording()
+    moved = np.zeros(len(recording.mocap.t), dtype=bool)
+    hidden = ~recording.mocap.visible
+    simulation = simulate("random_reach", seed=1, imu="mpu9255", duration=10.0,
+                          occlusions=OcclusionSpec(gap_range=(0.2, 0.4), spacing=1.5))
+    truth = np.asarray(simulation.truth.position)
+    from kfusion.recording import occlusion_runs
+
+    for start, stop in occlusion_runs(recording.mocap.visible):
+        if start > 0:
+            moved[start:stop] = np.linalg.norm(truth[start:stop] - truth[start - 1],
+                                               axis=1) > 0.002
+    assert moved.sum() >= 50
+    run = run_filter(held, engine=engine)
+    outcome = np.asarray(run.outcome)
+    assert (outcome[moved] == "occluded").all()
+    assert run.counters["held_poses"] >= moved.sum()
+    assert run.counters["held_poses"] <= hidden.sum()
+    plain = run_filter(recording, engine=engine)
+    seen = recording.mocap.visible
+    np.testing.assert_array_equal(outcome[seen], np.asarray(plain.outcome)[seen])
+
+
+def test_held_poses_agree_across_engines_and_with_the_tracker():
+    """filterpy and the compiled engine read the same frames as held, to 1e-9 m; the Tracker
+    counts as many in health, fed in the natural order or with every mocap frame ahead of the
+    IMU samples at its time (which replays), and gives the same rows bit for bit in both."""
+    from test_batch_streaming import arrival_orders
+    from test_batch_streaming import stream_rows as streamed
+
+    _, held = held_recording(seed=2, duration=8.0)
+    reference, compiled = run_filter(held, engine="filterpy"), run_filter(held,
+                                                                         engine="compiled")
+    assert reference.counters["held_poses"] == compiled.counters["held_poses"] > 0
+    np.testing.assert_array_equal(reference.outcome, compiled.outcome)
+    np.testing.assert_allclose(compiled.result.position, reference.result.position, atol=1e-9,
+                               equal_nan=True)
+    rows = {}
+    for name, order in arrival_orders(held, 0.0).items():  # natural, mocap_first
+        tracker = Tracker.from_recording_info(held.info)
+        rows[name] = streamed(held, tracker, order, 0.0)
+        assert tracker.health.held_poses == compiled.counters["held_poses"], name
+    for key in ("position", "std"):
+        np.testing.assert_array_equal(rows["natural"][key], rows["mocap_first"][key])
+
+
+def test_a_still_noise_free_body_repeats_its_pose_and_stays_tracked():
+    """A still body with a noise-free mocap (synthetic data) repeats its pose bit for bit; the
+    IMU shows it still (gyroscope and velocity), so the repeats are fixes, not held poses."""
+    rate, mocap_every = 200.0, 2
+    t = np.arange(0.0, 4.0, 1.0 / rate)
+    rng = np.random.default_rng(5)
+    accelerometer = np.tile([0.0, 0.0, 9.81], (len(t), 1)) + 0.02 * rng.standard_normal(
+        (len(t), 3))
+    gyroscope = 0.002 * rng.standard_normal((len(t), 3))
+    tracker = Tracker([1.0, 0.0, 0.0, 0.0], gravity=(0.0, 0.0, -9.81))
+    for index, time in enumerate(t):
+        tracker.push_imu(time, accelerometer[index], gyroscope[index])
+        if index % mocap_every == 0:
+            tracker.push_mocap(time, [0.3, 0.1, 1.2], [1.0, 0.0, 0.0, 0.0])
+    estimate = tracker.estimate(float(t[-1]))
+    assert estimate.status == TRACKED
+    assert tracker.health.held_poses == 0
+    np.testing.assert_allclose(estimate.position, [0.3, 0.1, 1.2], atol=1e-4)
