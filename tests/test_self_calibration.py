@@ -576,3 +576,29 @@ def test_broad_trial_15_mount_from_rates_and_specific_force():
     error = rotation_from_wxyz(result.info.imu_to_body).as_rotvec()  # identity is the truth
     assert np.all(np.abs(np.degrees(error)) < 3.0 * mount.std_deg)
     assert "disagree beyond their noise" in "\n".join(result.report())
+
+
+def test_a_recording_without_occlusions_is_fitted_inside_the_imu_span():
+    """A recording without occlusions is one visible mocap run; where the IMU starts after the
+    mocap and stops before it, the part of the run inside the IMU's span is fitted. Before, the
+    whole run was skipped and `kfusion check` refused the recording with "no visible mocap run
+    of at least 1 s" (a mocap that repeats its last pose through occlusions, the fail-safe row,
+    is such a recording)."""
+    from kfusion.calibration.specific_force import specific_force_system
+
+    recording = simulate("arm_lift", seed=3, duration=6.0, occlusions=None).recording
+    assert recording.mocap.visible.all()
+    imu = recording.imu
+    keep = (imu.t >= 0.5) & (imu.t <= 5.5)
+    late = dataclasses.replace(recording, imu=ImuSamples(
+        imu.t[keep], imu.accelerometer[keep], imu.gyroscope[keep]))
+    info = recording.info
+    y, design = specific_force_system(late, info.imu_time_offset, info.imu_clock_drift_ppm,
+                                      info.imu_to_body)
+    full, _ = specific_force_system(recording, info.imu_time_offset, info.imu_clock_drift_ppm,
+                                    info.imu_to_body)
+    assert len(y) == len(design) > 0
+    # the fitted rows are the run's frames inside 0.5-5.5 s, less the trims at both ends
+    mocap_t = recording.mocap.t
+    assert len(y) == pytest.approx(len(full) * ((mocap_t >= 0.5) & (mocap_t <= 5.5)).sum()
+                                   / len(mocap_t), rel=0.1)

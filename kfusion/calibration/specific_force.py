@@ -198,12 +198,15 @@ def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
     force_rate = np.gradient(imu.accelerometer, imu.t, axis=0) if time_shift else None
     rows_y, rows_a = [], []
     for start, stop in occlusion_runs(~mocap.visible):  # runs of visible frames
-        t = mocap.t[start:stop]
-        if len(t) < 10 or t[-1] - t[0] < MIN_RUN_S:
+        # the part of the run inside the IMU's span (a recording without occlusions is one
+        # run, which the IMU may start after or stop before)
+        tau = mocap_to_imu_time(mocap.t[start:stop], offset, drift_ppm)
+        inside = np.flatnonzero((tau >= imu.t[0]) & (tau <= imu.t[-1]))
+        if len(inside) == 0:
             continue
-        tau = mocap_to_imu_time(t, offset, drift_ppm)
-        inside = (tau >= imu.t[0]) & (tau <= imu.t[-1])
-        if not inside.all():
+        start, stop = start + int(inside[0]), start + int(inside[-1]) + 1
+        t, tau = mocap.t[start:stop], tau[inside[0]:inside[-1] + 1]
+        if len(t) < 10 or t[-1] - t[0] < MIN_RUN_S:
             continue
         rate = (len(t) - 1) / (t[-1] - t[0])
         if cutoff_hz >= 0.45 * rate:
