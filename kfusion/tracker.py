@@ -46,9 +46,9 @@ stalled or never delivering            follows the no-IMU model (the covariance 
 stamp > ``max_time_jump_s`` ahead of   rejected ``implausible_time``; three consistent such
 both streams (a glitch)                stamps confirm a real jump (``time_rebases``), as do
                                        stamps of every stream far behind a glitched present
-mocap stamp ahead of the cadence       more than 3 frame periods after the previous frame and
+mocap stamp ahead of the cadence       more than 2.5 frame periods after the previous frame and
 and of the IMU (a frame counter or     as far ahead of the newest IMU sample: ``held`` until the
-host clock glitching a few frames)     next frame; one stamped at or before it rejects it
+host clock glitching a few frames)     next frame; one stamped before it rejects it
                                        ``implausible_time``, one stamped after it confirms lost
                                        frames (the held one is fused first), as does an IMU
                                        sample past its time (``health.mocap_held``)
@@ -198,9 +198,12 @@ a frame held for jumping ahead of the mocap's cadence that the next frame contra
 HELD: Final = "held"
 """A mocap frame stamped ahead of the stream's cadence and of the IMU, held until the next
 frame (or the IMU) shows whether its stamp is real (:meth:`Tracker._admit_frame`)."""
-CADENCE_JUMP: Final = 3.0
+CADENCE_JUMP: Final = 2.5
 """A frame stamped more than this many frame periods after the previous one, and as far ahead
-of the newest IMU sample, is held (:data:`HELD`)."""
+of the newest IMU sample, is held (:data:`HELD`). 1.5 held frames of hand-built streams with
+uneven steps (a 5 ms step, then 10 ms: the period is the last step); 2.5 still holds a frame
+stamped 3 periods ahead (at 100 Hz a stale fix 30 ms ahead was shown `tracked` at its stamp
+up to 46x beyond its bound, to a reader at the newest time)."""
 
 FIXED: Final = (ACCEPTED, REACQUIRED, INITIALISED)
 """Mocap outcomes whose fix was fused: the filter's own vocabulary
@@ -916,8 +919,10 @@ class _Stream:
     rejected: dict[str, int] = field(default_factory=dict)
     saturated: int = 0
     longest_interval_s: float = 0.0
-    # mocap only: the last frame interval in cadence (s), and a frame held for jumping ahead
+    # mocap only: the newest stamp of a frame that arrived in order (fused, or rejected for
+    # its values), the last frame interval in cadence (s), and a frame held for jumping ahead
     # of it (its event and (position, quaternion) values), see Tracker._admit_frame
+    cadence_t: float = -math.inf
     interval: float = math.inf
     held: tuple[tuple, tuple[ArrayLike, ArrayLike]] | None = None
 
@@ -1249,6 +1254,7 @@ class Tracker:
         values = point.tolist()
         components = rotation.tolist()
         if not math.isfinite(t) or any(map(math.isinf, values + components)):
+            self._frame_arrived(t)
             return self._reject(stream, NON_FINITE)
         if self._implausible(t, MOCAP_STREAM):
             return self._reject(stream, IMPLAUSIBLE_TIME)
@@ -1259,6 +1265,7 @@ class Tracker:
         else:
             norm = math.sqrt(sum(value * value for value in components))
             if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+                self._frame_arrived(t)
                 return self._reject(stream, BAD_QUATERNION)
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (point, rotation))
@@ -1302,6 +1309,7 @@ class Tracker:
         stream = self._mocap
         stream.pushed += 1
         if not math.isfinite(t) or np.isinf(observed).any():
+            self._frame_arrived(t)
             return self._reject(stream, NON_FINITE)
         if self._implausible(t, MOCAP_STREAM):
             return self._reject(stream, IMPLAUSIBLE_TIME)
@@ -1315,35 +1323,57 @@ class Tracker:
         """Fuse a validated frame in order after the stream's last one, unless it jumps ahead.
 
         A frame stamped more than :data:`CADENCE_JUMP` frame periods after the previous frame
-        and as far ahead of the newest IMU sample (the stamp of a frame whose counter or host
+        (the newest that arrived in order, whether fused or rejected for its values) and as far
+        ahead of the newest IMU sample (the stamp of a frame whose counter or host
         clock glitched a few frames ahead: under ``max_time_jump_s``, so plausible) is held:
         fused at once, its stale pose would stand at a time the IMU has not reached, push the
         IMU samples behind it out as ``too_late`` and reject every true frame before its stamp
         ``out_of_order``. The next frame decides: stamped after it, the frames between were
-        lost (the held frame is fused first, in its place); stamped at or before it, the held
-        frame was the glitch (rejected ``implausible_time``) and the new one goes on in the
-        cadence. An IMU sample past the held frame's time fuses it too (the mocap stopped after
-        it). Frames in cadence, the first ones, and frames the IMU already covers (a client
-        that leaves out occluded frames, an IMU latency) are not held."""
+        lost (the held frame is fused first, in its place); stamped before it, the held frame
+        was the glitch (rejected ``implausible_time``) and the new one goes on in the cadence;
+        at its stamp, the same values are a ``duplicate`` (the frame stays held), others a
+        ``conflicting_duplicate`` (both rejected). An IMU sample past the held frame's time
+        fuses it too (the mocap stopped after it). Frames in cadence, the first ones, and
+        frames the IMU already covers (a client that leaves out occluded frames, an IMU
+        latency) are not held. A frame 2 periods ahead (the stamp of the frame after next)
+        is not caught: it is fused, the true frames up to its stamp rejected as before."""
         stream = self._mocap
         t = event[0]
         held = stream.held
         if held is not None:
+            if t == held[0][0]:  # the held frame again: skipped, or both rejected
+                same = all(np.array_equal(new, old, equal_nan=True)
+                           for new, old in zip(values, held[1], strict=True))
+                if same:
+                    return self._reject(stream, DUPLICATE)
+                stream.held = None
+                stream.rejected[IMPLAUSIBLE_TIME] += 1
+                return self._reject(stream, CONFLICTING_DUPLICATE)
             stream.held = None
-            if t <= held[0][0]:
+            if t < held[0][0]:
                 stream.rejected[IMPLAUSIBLE_TIME] += 1
             elif self._fuse_frame(*held) is None:  # its outcome was reported as held
                 stream.rejected[TOO_LATE] += 1
+        step = t - stream.cadence_t  # after the newest frame that arrived in order
         jump = CADENCE_JUMP * stream.interval
-        if t - stream.last_t > jump and t - self._imu_newest > jump:
+        if step > jump and t - self._imu_newest > jump:
             stream.held = (event, values)
             return PushOutcome(False, HELD)
-        interval = t - stream.last_t
         reason = self._fuse_frame(event, values)
         if reason is None:
             return self._reject(stream, TOO_LATE)
-        stream.interval = interval
+        if step > 0:
+            stream.interval = step
         return PushOutcome(reason in FIXED, reason)
+
+    def _frame_arrived(self, t: float) -> None:
+        """A frame rejected for its values (not its stamp) still shows the mocap's cadence:
+        its stamp, when finite and within ``max_time_jump_s`` after the newest one, is the
+        newest that arrived (``_Stream.cadence_t``)."""
+        stream = self._mocap
+        if math.isfinite(t) and (stream.cadence_t == -math.inf or stream.cadence_t < t
+                                 <= stream.cadence_t + self.options.max_time_jump_s):
+            stream.cadence_t = t
 
     def _release_held(self, before: float) -> None:
         """Fuse the held frame when an IMU sample at ``before`` (s, its event time) passes it."""
@@ -1363,6 +1393,7 @@ class Tracker:
         if reason is None:
             return None
         stream.last_t, stream.last_values = t, values
+        stream.cadence_t = max(stream.cadence_t, t)
         stream.accepted += 1
         self._watch.mocap(t)
         if event[-1] is not _MARKER_FRAME:
@@ -1583,7 +1614,7 @@ class Tracker:
         if keep_counters:
             for stream in (self._imu, self._mocap):
                 stream.last_t, stream.last_values = -math.inf, None
-                stream.interval, stream.held = math.inf, None
+                stream.cadence_t, stream.interval, stream.held = -math.inf, math.inf, None
             self._book = _Book(counts=self._book.counts)
             self._watch.forget()
         else:
