@@ -1376,7 +1376,9 @@ class Tracker:
             stream.cadence_t = t
 
     def _release_held(self, before: float) -> None:
-        """Fuse the held frame when an IMU sample at ``before`` (s, its event time) passes it."""
+        """Fuse the held frame when an IMU sample at ``before`` (s, its event time) passes it
+        (``math.inf``: before a reset or a rebase forgets the streams, so that it is
+        counted)."""
         stream = self._mocap
         held = stream.held
         if held is not None and held[0][0] < before:
@@ -1547,7 +1549,8 @@ class Tracker:
         error is refused again at once, and a transient fault's evidence does not outlive the
         reset."""
         self._resets += 1
-        self._flush()  # the deferred samples count before the state is forgotten
+        self._release_held(math.inf)  # a held frame and the deferred samples count before
+        self._flush()  # the state is forgotten
         self._estimator = self._new_estimator()
         self._start_streams(keep_counters=True)
 
@@ -1648,7 +1651,8 @@ class Tracker:
         seen = _STREAMS_SEEN[imu != -math.inf, mocap != -math.inf]
         verdict = self._guard.check(t, stream, present, seen)
         if verdict == REBASE:
-            self._flush()  # the deferred samples count before the restart
+            self._release_held(math.inf)  # a held frame and the deferred samples count
+            self._flush()  # before the restart
             self._estimator = self._new_estimator()
             self._start_streams(keep_counters=True)
         return verdict == IMPLAUSIBLE

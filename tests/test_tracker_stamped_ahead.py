@@ -206,6 +206,32 @@ def test_a_frame_at_the_held_stamp_is_a_duplicate_or_a_conflict(streams):
         health.mocap_rejected.values())
 
 
+def test_a_held_frame_survives_a_snapshot_and_counts_at_a_reset(streams):
+    """A snapshot holds the held frame (its copy decides it as the original does); a reset
+    fuses it first, so that every pushed frame is counted."""
+    recording = streams.recording
+    imu, mocap = recording.imu, recording.mocap
+    last = int(np.flatnonzero(mocap.visible & (mocap.t > 1.0))[0])
+    tracker = Tracker.from_recording_info(recording.info)
+    for _, stream, index in merge_events(imu.t[imu.t <= mocap.t[last]].tolist(),
+                                         mocap.t[:last + 1].tolist()):
+        push(tracker, streams, stream, index)
+    assert push(tracker, streams, MOCAP_STREAM, last + 15).reason == "held"
+    copy = Tracker.from_recording_info(recording.info)
+    copy.restore(tracker.snapshot())
+    assert copy.health.mocap_held == 1
+    for each in (tracker, copy):
+        assert push(each, streams, MOCAP_STREAM, last + 1).reason in ("accepted", "occluded")
+    assert_same(copy.estimate(float(mocap.t[last + 1])),
+                tracker.estimate(float(mocap.t[last + 1])))
+    assert copy.health.as_dict() == tracker.health.as_dict()
+    assert push(tracker, streams, MOCAP_STREAM, last + 15).reason == "held"
+    tracker.reset()
+    health = tracker.health
+    assert health.mocap_held == 0 and health.mocap_pushed == health.mocap_fused + \
+        health.mocap_occluded + sum(health.mocap_rejected.values())
+
+
 def test_a_client_leaving_out_occluded_frames_is_not_held(streams):
     """Frames the IMU already covers are fused at once, however far apart: a client that
     pushes only visible frames gets each re-acquisition's outcome at once."""
