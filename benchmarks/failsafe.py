@@ -346,6 +346,8 @@ FAULTS: list[tuple[str, Fault, str]] = [
     ("IMU stops while mocap goes on", faults.imu_stops, "sim"),
     ("IMU misses 0.3 s inside an occlusion", faults.imu_misses_inside_gaps, "long"),
     ("one mocap frame stamped 1000 s ahead", faults.mocap_future_stamp, "sim"),
+    ("a mocap frame stamped 0.15 s ahead every 2 s",
+     lambda s: faults.mocap_frame_stamped_ahead(s, 0.15, every_s=2.0), "sim"),
     ("orientation flips 180 deg before a gap", faults.orientation_flip_before_gaps, "sim"),
     ("marker swap lasting 1 s", faults.marker_swap, "sim"),
     ("marker dropout: body 4 mm off for 10 frames", faults.sub_gate_glitches, "sim"),

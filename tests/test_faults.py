@@ -68,6 +68,29 @@ def test_clock_faults_change_stamps_not_arrival(streams):
     np.testing.assert_array_equal(future.mocap_arrival, streams.mocap_arrival)
 
 
+def test_frames_stamped_ahead_keep_their_pose_and_arrival(streams):
+    mocap = streams.recording.mocap
+    one = fault.mocap_frame_stamped_ahead(streams, ahead_s=0.15, seed=3)
+    changed = np.flatnonzero(one.recording.mocap.t != mocap.t)
+    assert len(changed) == 1 and mocap.visible[changed[0]]
+    assert one.recording.mocap.t[changed[0]] - mocap.t[changed[0]] == pytest.approx(0.15)
+    # the pose is the frame's own (stale at its new stamp), it arrives at its true time: the
+    # frames after it arrive stamped before it
+    np.testing.assert_array_equal(one.recording.mocap.position, mocap.position)
+    np.testing.assert_array_equal(one.mocap_arrival, streams.mocap_arrival)
+    assert one.recording.imu is streams.recording.imu
+    assert one.recording.mocap.t[changed[0] + 1] < one.recording.mocap.t[changed[0]]
+    again = fault.mocap_frame_stamped_ahead(streams, ahead_s=0.15, seed=3)
+    np.testing.assert_array_equal(again.recording.mocap.t, one.recording.mocap.t)
+    several = fault.mocap_frame_stamped_ahead(streams, ahead_s=0.2, every_s=1.0)
+    rows = np.flatnonzero(several.recording.mocap.t != mocap.t)
+    duration = mocap.t[-1] - mocap.t[0]
+    assert len(rows) == int(np.ceil((duration - 0.2) / 1.0))
+    assert mocap.visible[rows].all() and (np.diff(mocap.t[rows]) > 0.2).all()
+    with pytest.raises(ValueError, match="every_s"):
+        fault.mocap_frame_stamped_ahead(streams, ahead_s=0.2, every_s=0.2)
+
+
 def test_orientation_flip_is_a_half_turn_on_the_frame_before_each_gap(streams):
     flipped = fault.orientation_flip_before_gaps(streams)
     before = streams.recording.mocap.quaternion

@@ -326,6 +326,38 @@ def test_push_markers_equals_kfusion_track_with_markers_bit_for_bit(tmp_path, ca
     assert late.health.markers_used == in_order.health.markers_used
 
 
+def test_a_marker_frame_stamped_ahead_is_held_and_rejected_by_the_next(partial):
+    """push_markers holds a frame stamped 0.15 s ahead of the cadence and of the IMU like
+    push_mocap (kfusion.tracker.Tracker._admit_frame): the next frame, stamped before it,
+    rejects it, and every estimate is that of a tracker never given it."""
+    recording = partial.recording
+    imu, mocap = recording.imu, recording.mocap
+    glitch = int(np.flatnonzero(recording.markers.visible.all(axis=1) & (mocap.t > 3.0))[0])
+    events = sorted([(t, 0, i) for i, t in enumerate(imu.t) if t < 4.0]
+                    + [(t, 1, j) for j, t in enumerate(mocap.t) if t < 4.0])
+    tracker = Tracker.from_recording_info(recording.info)
+    without = Tracker.from_recording_info(recording.info)
+    for t, stream, index in events:
+        if stream == 0:
+            for each in (tracker, without):
+                each.push_imu(t, imu.accelerometer[index], imu.gyroscope[index])
+            continue
+        if index == glitch:
+            outcome = tracker.push_markers(t + 0.15, marker_frame(recording, index))
+            assert outcome.reason == "held" and tracker.health.mocap_held == 1
+            continue
+        tracker.push_markers(t, marker_frame(recording, index))
+        without.push_markers(t, marker_frame(recording, index))
+        actual, expected = tracker.estimate(t), without.estimate(t)
+        assert actual.status == expected.status
+        np.testing.assert_array_equal(actual.position, expected.position)
+        np.testing.assert_array_equal(actual.covariance, expected.covariance)
+    health = tracker.health
+    assert health.mocap_rejected["implausible_time"] == 1 and health.mocap_held == 0
+    assert health.markers_used == without.health.markers_used
+    assert health.mocap_rejected["out_of_order"] == health.imu_rejected["too_late"] == 0
+
+
 def test_the_smoother_fuses_markers(partial):
     recording, truth = partial.recording, partial.truth.position
     gap = ~recording.mocap.visible

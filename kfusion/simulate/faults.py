@@ -145,6 +145,38 @@ def mocap_future_stamp(streams: Streams, fraction: float = 0.4, ahead_s: float =
     return _mocap(streams, t=t)
 
 
+def mocap_frame_stamped_ahead(streams: Streams, ahead_s: float = 0.15,
+                              every_s: float | None = None, seed: int = 0) -> Streams:
+    """Visible mocap frames stamped ``ahead_s`` s ahead of their true time (a frame counter
+    or a host timestamp glitching by a few frames), below the Tracker's ``max_time_jump_s``
+    so that the stamp is plausible. ``every_s`` None: one frame, the first visible frame
+    after a time drawn uniformly in the middle 80 % of the recording; else one per
+    ``every_s`` s window (a random visible frame in each, ``every_s`` > ``ahead_s``).
+    Choices use ``np.random.default_rng(seed)``.
+
+    Arrival order: every frame, the glitched one included, still arrives at its true time
+    (the stamp is wrong, the delivery real time), so a live system receives the glitched
+    frame between its true neighbours, then frames stamped before it. The frame's pose is
+    that of its true time (the stale pose at the future stamp). The recording's mocap
+    stamps are no longer increasing: written to a folder it is refused by the reader
+    (``kfusion check``/``track`` name the row), as with :func:`mocap_future_stamp`."""
+    if every_s is not None and not every_s > ahead_s:
+        raise ValueError(f"every_s: expected more than ahead_s ({ahead_s}), got {every_s}")
+    mocap = streams.recording.mocap
+    rng = np.random.default_rng(seed)
+    t = np.array(mocap.t)
+    start, end = float(t[0]), float(t[-1])
+    if every_s is None:
+        draws = [start + (0.1 + 0.8 * rng.random()) * (end - start)]
+    else:
+        edges = np.arange(start, end - ahead_s, every_s)
+        draws = [float(edge + rng.random() * (every_s - ahead_s)) for edge in edges]
+    for draw in draws:
+        index = _visible_index_after(mocap, draw)
+        t[index] = mocap.t[index] + ahead_s
+    return _mocap(streams, t=t)
+
+
 def orientation_flip_before_gaps(streams: Streams) -> Streams:
     """The last visible frame before each occlusion reports its orientation turned 180 degrees
     about the body x axis."""
