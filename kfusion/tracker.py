@@ -47,11 +47,11 @@ stamp > ``max_time_jump_s`` ahead of   rejected ``implausible_time``; three cons
 both streams (a glitch)                stamps confirm a real jump (``time_rebases``), as do
                                        stamps of every stream far behind a glitched present
 mocap stamp ahead of the cadence       more than 2.5 frame periods after the previous frame and
-and of the IMU (a frame counter or     as far ahead of the newest IMU sample: ``held`` until the
+and of the IMU (a frame counter or     as far ahead of the newest IMU sample: ``waiting`` until the
 host clock glitching a few frames)     next frame; one stamped before it rejects it
                                        ``implausible_time``, one stamped after it confirms lost
-                                       frames (the held one is fused first), as does an IMU
-                                       sample past its time (``health.mocap_held``)
+                                       frames (the waiting one is fused first), as does an IMU
+                                       sample past its time (``health.mocap_waiting``)
 huge int time (beyond float)           rejected ``non_finite``; ``estimate`` of it is lost
 accelerometer at its range limit       accepted, flagged ``saturated``; the Kalman filter adds
 (an axis at >= 99.9 % of the range)    (range/2)^2 acceleration variance over the interval the
@@ -194,14 +194,14 @@ TOO_LATE: Final = "too_late"
 BAD_QUATERNION: Final = "bad_quaternion"
 IMPLAUSIBLE_TIME: Final = "implausible_time"
 """A stamp implausibly far ahead of both streams (:class:`kfusion.streamhealth.TimeGuard`), or
-a frame held for jumping ahead of the mocap's cadence that the next frame contradicted."""
-HELD: Final = "held"
-"""A mocap frame stamped ahead of the stream's cadence and of the IMU, held until the next
+a frame waiting for jumping ahead of the mocap's cadence that the next frame contradicted."""
+WAITING: Final = "waiting"
+"""A mocap frame stamped ahead of the stream's cadence and of the IMU, waiting until the next
 frame (or the IMU) shows whether its stamp is real (:meth:`Tracker._admit_frame`)."""
 CADENCE_JUMP: Final = 2.5
 """A frame stamped more than this many frame periods after the previous one, and as far ahead
-of the newest IMU sample, is held (:data:`HELD`). 1.5 held frames of hand-built streams with
-uneven steps (a 5 ms step, then 10 ms: the period is the last step); 2.5 still holds a frame
+of the newest IMU sample, waits (:data:`WAITING`). 1.5 made frames of hand-built streams wait with
+uneven steps (a 5 ms step, then 10 ms: the period is the last step); 2.5 still stops a frame
 stamped 3 periods ahead (at 100 Hz a stale fix 30 ms ahead was shown `tracked` at its stamp
 up to 46x beyond its bound, to a reader at the newest time)."""
 
@@ -233,7 +233,7 @@ class PushOutcome:
             ``saturated`` (IMU, fused but flagged), ``reacquired``,
             ``occluded``, ``gated``, ``non_finite``, ``out_of_order``, ``duplicate``,
             ``conflicting_duplicate``, ``too_late``, ``bad_quaternion``, ``implausible_time``,
-            ``held`` (a mocap frame stamped ahead of the stream's cadence, waiting for the
+            ``waiting`` (a mocap frame stamped ahead of the stream's cadence, waiting for the
             next frame: fused then if that one is stamped later, else rejected
             ``implausible_time``).
     """
@@ -297,7 +297,7 @@ class Health:
         mocap_fused: fixes fused (re-acquisitions included).
         mocap_occluded: occluded frames.
         mocap_rejected: reason -> count (``MOCAP_REJECTIONS``, ``gated`` included);
-            fused + occluded + rejected + held == pushed.
+            fused + occluded + rejected + waiting == pushed.
         gate_rejections: fixes rejected by the innovation gate (= ``mocap_rejected['gated']``).
         reacquisitions: fixes accepted as re-acquisitions after a long gap.
         time_tracked_s, time_bridged_s, time_lost_s: time spent in each status, s, from the first
@@ -329,8 +329,8 @@ class Health:
         clock_suspected: True while the timing is within the rule but beyond 2 sigma of zero
             (:attr:`kfusion.online_clock.OnlineClockCheck.suspected`): the bounds are widened
             by the timing error it implies.
-        mocap_held: 1 while a frame stamped ahead of the mocap's cadence and of the IMU waits
-            for the next frame (``held``), else 0; it counts as fused, occluded or rejected
+        mocap_waiting: 1 while a frame stamped ahead of the mocap's cadence and of the IMU waits
+            for the next frame (``waiting``), else 0; it counts as fused, occluded or rejected
             once decided.
     """
 
@@ -363,7 +363,7 @@ class Health:
     clock_offset_std_s: float = math.nan
     clock_problem: str = ""
     clock_suspected: bool = False
-    mocap_held: int = 0
+    mocap_waiting: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         """Plain nested dict (for logging or YAML/JSON)."""
@@ -933,11 +933,11 @@ class _Stream:
     saturated: int = 0
     longest_interval_s: float = 0.0
     # mocap only: the newest stamp of a frame that arrived in order (fused, or rejected for
-    # its values), the last frame interval in cadence (s), and a frame held for jumping ahead
-    # of it (its event and (position, quaternion) values), see Tracker._admit_frame
+    # its values), the last frame interval in cadence (s), and a frame waiting for jumping ahead
+    # of it, waiting (its event and (position, quaternion) values), see Tracker._admit_frame
     cadence_t: float = -math.inf
     interval: float = math.inf
-    held: tuple[tuple, tuple[ArrayLike, ArrayLike]] | None = None
+    waiting: tuple[tuple, tuple[ArrayLike, ArrayLike]] | None = None
 
 
 def _locked(method: Any) -> Any:
@@ -1222,8 +1222,8 @@ class Tracker:
         saturated = max(abs(a0), abs(a1), abs(a2)) >= self._saturation_level
         # fused at the time the sample describes (kfusion.kalman.events: stamp - latency)
         time, _ = event_key(t, IMU_STREAM, self._estimator.imu_latency_s)
-        if self._mocap.held is not None:
-            self._release_held(time)
+        if self._mocap.waiting is not None:
+            self._release_waiting(time)
         if self._fuse((time, IMU_STREAM, accelerometer, gyroscope, saturated, t)) is None:
             return self._reject(stream, TOO_LATE)
         interval = t - stream.last_t  # inf for the first sample (after a reset too)
@@ -1338,40 +1338,40 @@ class Tracker:
         A frame stamped more than :data:`CADENCE_JUMP` frame periods after the previous frame
         (the newest that arrived in order, whether fused or rejected for its values) and as far
         ahead of the newest IMU sample (the stamp of a frame whose counter or host
-        clock glitched a few frames ahead: under ``max_time_jump_s``, so plausible) is held:
+        clock glitched a few frames ahead: under ``max_time_jump_s``, so plausible) waits:
         fused at once, its stale pose would stand at a time the IMU has not reached, push the
         IMU samples behind it out as ``too_late`` and reject every true frame before its stamp
         ``out_of_order``. The next frame decides: stamped after it, the frames between were
-        lost (the held frame is fused first, in its place); stamped before it, the held frame
+        lost (the waiting frame is fused first, in its place); stamped before it, the waiting frame
         was the glitch (rejected ``implausible_time``) and the new one goes on in the cadence;
-        at its stamp, the same values are a ``duplicate`` (the frame stays held), others a
-        ``conflicting_duplicate`` (both rejected). An IMU sample past the held frame's time
+        at its stamp, the same values are a ``duplicate`` (the frame stays waiting), others a
+        ``conflicting_duplicate`` (both rejected). An IMU sample past the waiting frame's time
         fuses it too (the mocap stopped after it). Frames in cadence, the first ones, and
         frames the IMU already covers (a client that leaves out occluded frames, an IMU
-        latency) are not held. A frame 2 periods ahead (the stamp of the frame after next)
+        latency) never wait. A frame 2 periods ahead (the stamp of the frame after next)
         is not caught: it is fused, the true frames up to its stamp rejected as before."""
         stream = self._mocap
         t = event[0]
-        held = stream.held
-        if held is not None:
-            if t == held[0][0]:  # the held frame again: skipped, or both rejected
+        waiting = stream.waiting
+        if waiting is not None:
+            if t == waiting[0][0]:  # the waiting frame again: skipped, or both rejected
                 same = all(np.array_equal(new, old, equal_nan=True)
-                           for new, old in zip(values, held[1], strict=True))
+                           for new, old in zip(values, waiting[1], strict=True))
                 if same:
                     return self._reject(stream, DUPLICATE)
-                stream.held = None
+                stream.waiting = None
                 stream.rejected[IMPLAUSIBLE_TIME] += 1
                 return self._reject(stream, CONFLICTING_DUPLICATE)
-            stream.held = None
-            if t < held[0][0]:
+            stream.waiting = None
+            if t < waiting[0][0]:
                 stream.rejected[IMPLAUSIBLE_TIME] += 1
-            elif self._fuse_frame(*held) is None:  # its outcome was reported as held
+            elif self._fuse_frame(*waiting) is None:  # its outcome was reported as waiting
                 stream.rejected[TOO_LATE] += 1
         step = t - stream.cadence_t  # after the newest frame that arrived in order
         jump = CADENCE_JUMP * stream.interval
         if step > jump and t - self._imu_newest > jump:
-            stream.held = (event, values)
-            return PushOutcome(False, HELD)
+            stream.waiting = (event, values)
+            return PushOutcome(False, WAITING)
         reason = self._fuse_frame(event, values)
         if reason is None:
             return self._reject(stream, TOO_LATE)
@@ -1388,15 +1388,15 @@ class Tracker:
                                  <= stream.cadence_t + self.options.max_time_jump_s):
             stream.cadence_t = t
 
-    def _release_held(self, before: float) -> None:
-        """Fuse the held frame when an IMU sample at ``before`` (s, its event time) passes it
+    def _release_waiting(self, before: float) -> None:
+        """Fuse the waiting frame when an IMU sample at ``before`` (s, its event time) passes it
         (``math.inf``: before a reset or a rebase forgets the streams, so that it is
         counted)."""
         stream = self._mocap
-        held = stream.held
-        if held is not None and held[0][0] < before:
-            stream.held = None
-            if self._fuse_frame(*held) is None:
+        waiting = stream.waiting
+        if waiting is not None and waiting[0][0] < before:
+            stream.waiting = None
+            if self._fuse_frame(*waiting) is None:
                 stream.rejected[TOO_LATE] += 1
 
     def _fuse_frame(self, event: tuple, values: tuple[ArrayLike, ArrayLike]) -> str | None:
@@ -1551,7 +1551,7 @@ class Tracker:
             clock_offset_std_s=math.nan if clock is None else clock.std_s,
             clock_problem="" if clock is None else clock.problem,
             clock_suspected=self._clock_watch.suspected is not None,
-            mocap_held=int(mocap.held is not None),
+            mocap_waiting=int(mocap.waiting is not None),
         )
 
     @_locked
@@ -1563,7 +1563,7 @@ class Tracker:
         error is refused again at once, and a transient fault's evidence does not outlive the
         reset."""
         self._resets += 1
-        self._release_held(math.inf)  # a held frame and the deferred samples count before
+        self._release_waiting(math.inf)  # a waiting frame and the deferred samples count before
         self._flush()  # the state is forgotten
         self._estimator = self._new_estimator()
         self._start_streams(keep_counters=True)
@@ -1631,7 +1631,7 @@ class Tracker:
         if keep_counters:
             for stream in (self._imu, self._mocap):
                 stream.last_t, stream.last_values = -math.inf, None
-                stream.cadence_t, stream.interval, stream.held = -math.inf, math.inf, None
+                stream.cadence_t, stream.interval, stream.waiting = -math.inf, math.inf, None
             self._book = _Book(counts=self._book.counts)
             self._watch.forget()
         else:
@@ -1665,7 +1665,7 @@ class Tracker:
         seen = _STREAMS_SEEN[imu != -math.inf, mocap != -math.inf]
         verdict = self._guard.check(t, stream, present, seen)
         if verdict == REBASE:
-            self._release_held(math.inf)  # a held frame and the deferred samples count
+            self._release_waiting(math.inf)  # a waiting frame and the deferred samples count
             self._flush()  # before the restart
             self._estimator = self._new_estimator()
             self._start_streams(keep_counters=True)

@@ -344,7 +344,7 @@ def test_a_marker_frame_stamped_ahead_is_held_and_rejected_by_the_next(partial):
             continue
         if index == glitch:
             outcome = tracker.push_markers(t + 0.15, marker_frame(recording, index))
-            assert outcome.reason == "held" and tracker.health.mocap_held == 1
+            assert outcome.reason == "waiting" and tracker.health.mocap_waiting == 1
             continue
         tracker.push_markers(t, marker_frame(recording, index))
         without.push_markers(t, marker_frame(recording, index))
@@ -353,7 +353,7 @@ def test_a_marker_frame_stamped_ahead_is_held_and_rejected_by_the_next(partial):
         np.testing.assert_array_equal(actual.position, expected.position)
         np.testing.assert_array_equal(actual.covariance, expected.covariance)
     health = tracker.health
-    assert health.mocap_rejected["implausible_time"] == 1 and health.mocap_held == 0
+    assert health.mocap_rejected["implausible_time"] == 1 and health.mocap_waiting == 0
     assert health.markers_used == without.health.markers_used
     assert health.mocap_rejected["out_of_order"] == health.imu_rejected["too_late"] == 0
 

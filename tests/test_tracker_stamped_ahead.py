@@ -73,7 +73,7 @@ def test_a_frame_stamped_ahead_changes_no_estimate(streams, ahead_s):
     assert health.mocap_rejected["out_of_order"] == 0
     assert health.mocap_rejected["implausible_time"] == 1
     assert health.mocap_fused == without.health.mocap_fused
-    assert held.reason == "held" and not held.accepted
+    assert held.reason == "waiting" and not held.accepted
 
 
 @pytest.mark.parametrize("ahead_s", [0.03, 0.06, 0.1])
@@ -146,7 +146,7 @@ def test_frames_really_missing_fuse_the_frame_after_them_when_the_next_confirms_
         highest = max(highest, position)
         while complete < len(arrived) and arrived[complete]:
             complete += 1
-        if highest == complete - 1 and outcome.reason != "held":
+        if highest == complete - 1 and outcome.reason != "waiting":
             assert_same(late.estimate(late.newest_time), reference_after[highest])
             compared_after_jump += position > rank[(MOCAP_STREAM, jumped)]
     assert compared_after_jump > 100
@@ -169,14 +169,14 @@ def test_the_imu_passing_a_held_frame_fuses_it(streams):
     for _, stream, index in merge_events(imu.t[imu.t <= mocap.t[last]].tolist(),
                                          mocap.t[:last + 1].tolist()):
         push(tracker, streams, stream, index)
-    assert push(tracker, streams, MOCAP_STREAM, jumped).reason == "held"
+    assert push(tracker, streams, MOCAP_STREAM, jumped).reason == "waiting"
     health = tracker.health
     fused = health.mocap_fused
-    assert health.mocap_held == 1 and health.mocap_pushed == (
+    assert health.mocap_waiting == 1 and health.mocap_pushed == (
         fused + health.mocap_occluded + sum(health.mocap_rejected.values()) + 1)
     for index in np.flatnonzero((imu.t > mocap.t[last]) & (imu.t <= mocap.t[jumped] + 0.02)):
         push(tracker, streams, IMU_STREAM, int(index))
-    assert tracker.health.mocap_fused == fused + 1 and tracker.health.mocap_held == 0
+    assert tracker.health.mocap_fused == fused + 1 and tracker.health.mocap_waiting == 0
     estimate = tracker.estimate(float(mocap.t[jumped]) + 0.02)
     assert estimate.status == "tracked" and estimate.time_since_fix == pytest.approx(0.02)
 
@@ -194,13 +194,13 @@ def test_a_frame_at_the_held_stamp_is_a_duplicate_or_a_conflict(streams):
     jumped = last + 15
     stamp, position, quaternion = mocap.t[jumped], mocap.position[jumped], mocap.quaternion[jumped]
     fused = tracker.health.mocap_fused
-    assert tracker.push_mocap(stamp, position, quaternion).reason == "held"
+    assert tracker.push_mocap(stamp, position, quaternion).reason == "waiting"
     assert tracker.push_mocap(stamp, position.copy(), quaternion).reason == "duplicate"
-    assert tracker.health.mocap_held == 1
+    assert tracker.health.mocap_waiting == 1
     assert tracker.push_mocap(stamp, position + 0.01, quaternion).reason == \
         "conflicting_duplicate"
     health = tracker.health
-    assert health.mocap_held == 0 and health.mocap_fused == fused
+    assert health.mocap_waiting == 0 and health.mocap_fused == fused
     assert health.mocap_rejected["implausible_time"] == 1
     assert health.mocap_pushed == health.mocap_fused + health.mocap_occluded + sum(
         health.mocap_rejected.values())
@@ -216,19 +216,19 @@ def test_a_held_frame_survives_a_snapshot_and_counts_at_a_reset(streams):
     for _, stream, index in merge_events(imu.t[imu.t <= mocap.t[last]].tolist(),
                                          mocap.t[:last + 1].tolist()):
         push(tracker, streams, stream, index)
-    assert push(tracker, streams, MOCAP_STREAM, last + 15).reason == "held"
+    assert push(tracker, streams, MOCAP_STREAM, last + 15).reason == "waiting"
     copy = Tracker.from_recording_info(recording.info)
     copy.restore(tracker.snapshot())
-    assert copy.health.mocap_held == 1
+    assert copy.health.mocap_waiting == 1
     for each in (tracker, copy):
         assert push(each, streams, MOCAP_STREAM, last + 1).reason in ("accepted", "occluded")
     assert_same(copy.estimate(float(mocap.t[last + 1])),
                 tracker.estimate(float(mocap.t[last + 1])))
     assert copy.health.as_dict() == tracker.health.as_dict()
-    assert push(tracker, streams, MOCAP_STREAM, last + 15).reason == "held"
+    assert push(tracker, streams, MOCAP_STREAM, last + 15).reason == "waiting"
     tracker.reset()
     health = tracker.health
-    assert health.mocap_held == 0 and health.mocap_pushed == health.mocap_fused + \
+    assert health.mocap_waiting == 0 and health.mocap_pushed == health.mocap_fused + \
         health.mocap_occluded + sum(health.mocap_rejected.values())
 
 
@@ -245,5 +245,5 @@ def test_a_client_leaving_out_occluded_frames_is_not_held(streams):
         outcome = push(tracker, streams, stream, index)
         if stream == MOCAP_STREAM:
             reasons.append(outcome.reason)
-    assert "held" not in reasons and "reacquired" in reasons or "accepted" in reasons
+    assert "waiting" not in reasons and "reacquired" in reasons or "accepted" in reasons
     assert math.isfinite(tracker.estimate(float(mocap.t[-1])).bound())
