@@ -16,11 +16,12 @@ import math
 
 import numpy as np
 import pytest
+from test_tracker_late_arrival import assert_same
 
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, merge_events
 from kfusion.simulate import OcclusionSpec, simulate
 from kfusion.simulate.faults import Streams, mocap_frame_stamped_ahead
-from kfusion.tracker import Estimate, Tracker
+from kfusion.tracker import Tracker
 
 
 @pytest.fixture(scope="module")
@@ -43,12 +44,17 @@ def push(tracker: Tracker, streams: Streams, stream: int, index: int):  # noqa: 
     return tracker.push_mocap(mocap.t[index], mocap.position[index], mocap.quaternion[index])
 
 
-def assert_same(actual: Estimate, expected: Estimate) -> None:
-    assert actual.t == expected.t and actual.status == expected.status
-    assert actual.time_since_fix == expected.time_since_fix
-    for name in ("position", "velocity", "covariance", "std"):
-        np.testing.assert_array_equal(getattr(actual, name), getattr(expected, name),
-                                      err_msg=name)
+def fed_to_a_frame_after_1_s(streams) -> tuple[Tracker, int]:
+    """A tracker fed in the fusion order up to the first visible frame after 1 s, and that
+    frame's index."""
+    recording = streams.recording
+    imu, mocap = recording.imu, recording.mocap
+    last = int(np.flatnonzero(mocap.visible & (mocap.t > 1.0))[0])
+    tracker = Tracker.from_recording_info(recording.info)
+    for _, stream, index in merge_events(imu.t[imu.t <= mocap.t[last]].tolist(),
+                                         mocap.t[:last + 1].tolist()):
+        push(tracker, streams, stream, index)
+    return tracker, last
 
 
 @pytest.mark.parametrize("ahead_s", [0.03, 0.1, 0.15, 0.24])
@@ -185,12 +191,8 @@ def test_a_frame_at_the_held_stamp_is_a_duplicate_or_a_conflict(streams):
     """The held frame pushed again is a duplicate (it stays held); another frame at its stamp
     is a conflicting duplicate, and neither is fused."""
     recording = streams.recording
-    imu, mocap = recording.imu, recording.mocap
-    last = int(np.flatnonzero(mocap.visible & (mocap.t > 1.0))[0])
-    tracker = Tracker.from_recording_info(recording.info)
-    for _, stream, index in merge_events(imu.t[imu.t <= mocap.t[last]].tolist(),
-                                         mocap.t[:last + 1].tolist()):
-        push(tracker, streams, stream, index)
+    mocap = recording.mocap
+    tracker, last = fed_to_a_frame_after_1_s(streams)
     jumped = last + 15
     stamp, position, quaternion = mocap.t[jumped], mocap.position[jumped], mocap.quaternion[jumped]
     fused = tracker.health.mocap_fused
@@ -210,12 +212,8 @@ def test_a_held_frame_survives_a_snapshot_and_counts_at_a_reset(streams):
     """A snapshot holds the held frame (its copy decides it as the original does); a reset
     fuses it first, so that every pushed frame is counted."""
     recording = streams.recording
-    imu, mocap = recording.imu, recording.mocap
-    last = int(np.flatnonzero(mocap.visible & (mocap.t > 1.0))[0])
-    tracker = Tracker.from_recording_info(recording.info)
-    for _, stream, index in merge_events(imu.t[imu.t <= mocap.t[last]].tolist(),
-                                         mocap.t[:last + 1].tolist()):
-        push(tracker, streams, stream, index)
+    mocap = recording.mocap
+    tracker, last = fed_to_a_frame_after_1_s(streams)
     assert push(tracker, streams, MOCAP_STREAM, last + 15).reason == "waiting"
     copy = Tracker.from_recording_info(recording.info)
     copy.restore(tracker.snapshot())
