@@ -166,6 +166,30 @@ def _filter(values: Array, rate: float, cutoff: float) -> Array:
     return np.asarray(signal.filtfilt(b, a, values, axis=0))
 
 
+def _runs_inside(mocap_t: Array, visible: NDArray[np.bool_], imu_t: Array, offset: float,
+                 drift_ppm: float) -> list[tuple[int, int]]:
+    """Index ranges ``[start, stop)`` of the visible mocap runs of at least :data:`MIN_RUN_S`
+    (and 10 frames) that lie inside the IMU's span ``imu_t`` at the clock ``offset`` (s),
+    ``drift_ppm``. When none does, the parts of the runs inside the span: a recording without
+    occlusions is one run, which the IMU may start after or stop before (runs wholly inside
+    are preferred, since an offset search moves the span's edges across the runs at its
+    ends, and on BROAD 28's first 40 s the part of an end run moved the accelerometer's
+    timing by 2.8 ms)."""
+    runs = occlusion_runs(~np.asarray(visible, dtype=bool))  # runs of visible frames
+    whole: list[tuple[int, int]] = []
+    parts: list[tuple[int, int]] = []
+    for start, stop in runs:
+        tau = mocap_to_imu_time(mocap_t[start:stop], offset, drift_ppm)
+        inside = np.flatnonzero((tau >= imu_t[0]) & (tau <= imu_t[-1]))
+        if len(inside) == 0:
+            continue
+        part = (start + int(inside[0]), start + int(inside[-1]) + 1)
+        if part[1] - part[0] < 10 or mocap_t[part[1] - 1] - mocap_t[part[0]] < MIN_RUN_S:
+            continue
+        (whole if part == (start, stop) else parts).append(part)
+    return whole or parts
+
+
 def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
                           imu_to_body: ArrayLike, *, cutoff_hz: float = CUTOFF_HZ,
                           time_shift: bool = False, drift_shift: bool = False,
@@ -197,17 +221,9 @@ def specific_force_system(recording: Recording, offset: float, drift_ppm: float,
     angular_acceleration = np.gradient(imu.gyroscope, imu.t, axis=0)
     force_rate = np.gradient(imu.accelerometer, imu.t, axis=0) if time_shift else None
     rows_y, rows_a = [], []
-    for start, stop in occlusion_runs(~mocap.visible):  # runs of visible frames
-        # the part of the run inside the IMU's span (a recording without occlusions is one
-        # run, which the IMU may start after or stop before)
-        tau = mocap_to_imu_time(mocap.t[start:stop], offset, drift_ppm)
-        inside = np.flatnonzero((tau >= imu.t[0]) & (tau <= imu.t[-1]))
-        if len(inside) == 0:
-            continue
-        start, stop = start + int(inside[0]), start + int(inside[-1]) + 1
-        t, tau = mocap.t[start:stop], tau[inside[0]:inside[-1] + 1]
-        if len(t) < 10 or t[-1] - t[0] < MIN_RUN_S:
-            continue
+    for start, stop in _runs_inside(mocap.t, mocap.visible, imu.t, offset, drift_ppm):
+        t = mocap.t[start:stop]
+        tau = mocap_to_imu_time(t, offset, drift_ppm)
         rate = (len(t) - 1) / (t[-1] - t[0])
         if cutoff_hz >= 0.45 * rate:
             raise ValueError(f"cutoff_hz: expected below half the mocap rate ({rate:.0f} Hz), "
