@@ -886,11 +886,9 @@ class ConsistencyMonitor:
     def wants_prior(self, t: float, seen: bool) -> bool:
         """True when :meth:`mocap` needs the filter's estimate before a frame at t (s) that
         carries a fix (``seen``: a visible position or markers; a frame without one never
-        uses it): a fix was gated since the last fused one, the frame would end a gap
-        (:func:`reacquired_after_gap`; see :meth:`cover_rivals`), or the model is not tested
-        yet (:meth:`_informative`)."""
+        uses it): a fix was gated since the last fused one, or the frame would end a gap
+        (:func:`reacquired_after_gap`; see :meth:`cover_rivals`)."""
         return seen and (self._gated_fix is not None or (
-            not self.model_tested and self._last_fix is not None) or (
             self._last_fix is not None and self.params.reacquisition_rival_s > 0
             and reacquired_after_gap(t - self._last_fix[0], self.params.settle_after_s)))
 
@@ -902,7 +900,7 @@ class ConsistencyMonitor:
         from kfusion.kalman.filter import ACCEPTED, GATED, REACQUIRED, USED_OUTCOMES
 
         if outcome.kind in (ACCEPTED, REACQUIRED) and math.isfinite(outcome.nis) \
-                and not self.model_tested and self._informative(t, fusion, prior):
+                and not self.model_tested and self._informative(t, fusion):
             self._tested_fixes += 1  # compared with a tight prediction (model_tested)
             self._bridging_value = None
         if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
@@ -1246,24 +1244,16 @@ class ConsistencyMonitor:
         is never tested, and never bridged."""
         return self._tested_fixes >= self.params.recent_fixes
 
-    def _informative(self, t: float, fusion: KalmanFusion,
-                     prior: FilterEstimate | None = None) -> bool:
+    def _informative(self, t: float, fusion: KalmanFusion) -> bool:
         """True when the fix just fused at t (s) was predicted tightly enough to test the
-        model: the prediction's position covariance (``prior``'s, the filter's estimate before
-        the frame) was at most 9 R (R = r I; :func:`innovation_from_posterior`'s limit).
-        Without a prior, from the posterior: the update's gain ``K = P+ R^-1`` has its largest
-        eigenvalue at most 0.9, the same condition for a plain update (a repeated pose's
-        posterior is floored at R, :func:`kfusion.streamhealth.repeated_fix_floor`, so the
-        Tracker and both batch paths pass the prior until the model is tested)."""
+        model: the update's gain ``K = P+ R^-1`` (position block, R = r I) has its largest
+        eigenvalue at most 0.9, i.e. the prediction's covariance was at most 9 R
+        (:func:`innovation_from_posterior`'s limit)."""
         noise = self._shadow.params.mocap_position_noise ** 2
-        if prior is None:
-            covariance, limit = fusion.estimate(t).position_covariance, 0.9 * noise
-        else:
-            covariance, limit = prior.position_covariance, 9.0 * noise
-        covariance = np.asarray(covariance, dtype=float)
+        covariance = np.asarray(fusion.estimate(t).position_covariance, dtype=float)
         if not (noise > 0 and np.isfinite(covariance).all()):
             return False
-        return float(np.linalg.eigvalsh(0.5 * (covariance + covariance.T))[-1]) <= limit
+        return float(np.linalg.eigvalsh(0.5 * (covariance + covariance.T))[-1]) <= 0.9 * noise
 
     def clock_offset(self) -> tuple[float, float] | None:
         """(offset s, 1-sigma s) of the IMU clock the shadow gaps show (positive: the IMU clock
