@@ -300,26 +300,6 @@ def held_pose(rotation: tuple[float, float, float], elapsed_s: float,
     return not nis <= threshold
 
 
-def repeated_fix_floor(output_variance: ArrayLike, noise_variance: float
-                       ) -> NDArray[np.float64]:
-    """(3,) m^2 to add to the position states' variances after fusing a frame that repeats
-    the previous one while the IMU shows the body still (:func:`held_pose` False).
-
-    The repeat is the same sample again (a still body's pose held by the client, or a
-    noise-free stream): fused as a new measurement it shrinks the covariance as if the noise
-    had been averaged, while the error stays that one sample's (the fail-safe row "mocap
-    repeats the last pose": a held sample 0.96 mm off a still body, fused 14 times, gave a
-    bound of 0.40 mm). Its zero displacement is real information on the velocity, but the
-    position can know no more than one fix: per axis the output variance ``(H P H^T)_ii`` is
-    raised to the fix's ``noise_variance`` sigma_m^2::
-
-        P_pp,ii += max(0, sigma_m^2 - (H P H^T)_ii)
-
-    (``output_variance``: the diagonal of ``H P H^T`` after the update, m^2; with a lever
-    arm H's position block is I, so this adds to the output's variance one for one)."""
-    return np.maximum(0.0, noise_variance - np.asarray(output_variance, dtype=float))
-
-
 # ---------------------------------------------------------------------------------------------
 # IMU outages, counted once
 # ---------------------------------------------------------------------------------------------

@@ -1159,15 +1159,6 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
         innovation_covariance(P, H, noise_variance, PHT, S)
         inverse3(S, S_inverse)
     position_update(x, P, y, S_inverse, S, PHT, K)
-    if repeated:  # the same sample again (kfusion.streamhealth.repeated_fix_floor)
-        p = int(config[C_POSITION])
-        for i in range(3):
-            output_variance = 0.0
-            for j in range(n):
-                for k in range(n):
-                    output_variance += H[i, j] * P[j, k] * H[i, k]
-            if noise_variance > output_variance:
-                P[p + i, p + i] += noise_variance - output_variance
     if has_orientation:
         orientation_correct(orientation, q_global_imu, config)
         scalars[LAST_ORIENTATION_FIX] = t

@@ -848,8 +848,7 @@ class KalmanFusion:
         if z is None:
             self._counters["occluded"] += 1
             return UpdateOutcome(t, OCCLUDED, math.nan)
-        repeated = streamhealth.repeats_frame(z, q_global_body, previous)
-        if repeated and self._held(t):
+        if self._held(t, z, q_global_body, previous):
             self._counters["held_poses"] += 1
             self._counters["occluded"] += 1
             return UpdateOutcome(t, OCCLUDED, math.nan)
@@ -900,12 +899,6 @@ class KalmanFusion:
             self._prior = (np.array(self._kf.x, dtype=float), np.array(self._kf.P, dtype=float))
         self._kf.update(z - offset, H=H)
         self._symmetrise()
-        if repeated:  # the same sample again: the position knows no more than one fix
-            floor = streamhealth.repeated_fix_floor(np.einsum("ij,jk,ik->i", H, self._kf.P, H),
-                                                    self.params.mocap_position_noise ** 2)
-            position = model.POSITION.start
-            for axis in range(3):
-                self._kf.P[position + axis, position + axis] += floor[axis]
         if q_global_imu is not None:
             self._orientation.correct(q_global_imu)
             self._R_current = None
@@ -1091,14 +1084,15 @@ class KalmanFusion:
             innovation, state.covariance[0], self._orientation.measurement_variance
             if measurement_variance is None else measurement_variance, self._gate)
 
-    def _held(self, t: float) -> bool:
-        """A frame at t that repeats the previous one bit for bit is held: the gyroscope
-        turned since the last fix or the state moves (:func:`kfusion.streamhealth.held_pose`);
-        a pose held through an occlusion, not a measurement. False before a fix and an
-        orientation."""
+    def _held(self, t: float, z: NDArray[np.float64], q_global_body: NDArray[np.float64] | None,
+              previous: tuple[NDArray[np.float64], NDArray[np.float64] | None] | None) -> bool:
+        """The frame repeats the ``previous`` one bit for bit while the gyroscope turned since
+        the last fix or the state moves (:func:`kfusion.streamhealth.held_pose`): a pose held
+        through an occlusion, not a measurement. False before a fix and an orientation."""
         state = self._orientation.state
         if self._last_fix is None or self._orientation_at_fix is None or \
-                not state.initialised:
+                not state.initialised or not streamhealth.repeats_frame(z, q_global_body,
+                                                                        previous):
             return False
         rotation = quaternion_log(quaternion_product(conjugate(self._orientation_at_fix),
                                                      state.quaternion))
