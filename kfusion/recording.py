@@ -398,6 +398,33 @@ class Recording:
 # --------------------------------------------------------------------------------------------
 
 
+def held_frames(mocap: MocapFrames) -> NDArray[np.bool_]:
+    """(m,) True where a visible frame (position and quaternion) repeats the previous visible
+    frame's pose bit for bit (:func:`kfusion.streamhealth.repeats_frame`, the rule and why: a
+    pose held through an occlusion, not a measurement). The BROAD trials have none."""
+    position, quaternion = np.asarray(mocap.position), np.asarray(mocap.quaternion)
+    held = np.zeros(len(position), dtype=bool)
+    if len(position) > 1:
+        visible = np.asarray(mocap.visible, dtype=bool)
+        held[1:] = (visible[1:] & visible[:-1] & (position[1:] == position[:-1]).all(axis=1)
+                    & (quaternion[1:] == quaternion[:-1]).all(axis=1))
+    return held
+
+
+def without_held_frames(recording: Recording) -> tuple[Recording, int]:
+    """``recording`` with its :func:`held_frames` occluded (position and quaternion NaN), and
+    how many there were; the same object when there are none."""
+    mocap = recording.mocap
+    held = held_frames(mocap)
+    count = int(held.sum())
+    if count == 0:
+        return recording, 0
+    position, quaternion = np.array(mocap.position), np.array(mocap.quaternion)
+    position[held], quaternion[held] = np.nan, np.nan
+    return recording.with_mocap(dataclasses.replace(mocap, position=position,
+                                                    quaternion=quaternion)), count
+
+
 def occlusion_runs(visible: NDArray[np.bool_]) -> list[tuple[int, int]]:
     """Index ranges ``[start, stop)`` of consecutive occluded frames (``visible`` False)."""
     hidden = ~np.asarray(visible, dtype=bool)

@@ -19,9 +19,9 @@ streaming filter (:mod:`kfusion.kalman.filter`), the batch driver and smoother
   samples) or when the present was itself a glitch (samples of every stream far behind it).
 * **Orientation fixes.** :func:`orientation_gated` gates a mocap orientation against the
   gyroscope-propagated one.
-* **Held poses.** A frame repeating the previous frame's pose bit for bit while the gyroscope
-  shows the body turning (:func:`repeats_frame`, :func:`held_pose`) is a pose held through an
-  occlusion (a client repeating the last value), read as occluded.
+* **Held poses.** A frame repeating the previous frame's pose bit for bit (:func:`repeats_frame`)
+  is not a measurement: a pose held through an occlusion by a client repeating the last value,
+  read as occluded.
 * **Outages counted.** :class:`ImuWatch` counts IMU outages once each, whether they end with a
   late sample or are seen from the mocap stream while the IMU is silent.
 """
@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from kfusion.conventions import BRIDGED, LOST, TRACKED
 
@@ -233,71 +233,29 @@ def orientation_gated(innovation: tuple[float, float, float], angle_variance: fl
     return not (S > 0.0 and angle_squared / S <= threshold)
 
 
-HELD_POSE_MIN_ANGLE: Final = 1e-3
-"""rad (0.06 deg). A repeated pose is never called held while the gyroscope's turn since the last
-fix is at most this (:func:`held_pose`): the floor keeps an unmodelled gyroscope error of a still
-body from reading as motion; a moving forearm turns that far in a few milliseconds."""
-
-HELD_POSE_MIN_SPEED: Final = 1e-3
-"""m/s. Nor while the filter's speed is at most this (:func:`held_pose`): 1 mm/s held through
-a 0.5 s occlusion moves the body 0.5 mm."""
-
-
 def repeats_frame(position: NDArray[np.float64], quaternion: NDArray[np.float64] | None,
                   previous: tuple[NDArray[np.float64], NDArray[np.float64] | None] | None
                   ) -> bool:
     """True when a frame's ``position`` (3,) m and ``quaternion`` (4,) or None equal the
     ``previous`` frame's (position, quaternion) bit for bit (both without a quaternion, or both
-    with the same one); ``previous`` None: no previous frame, or it was occluded."""
+    with the same one); ``previous`` None: no previous frame, or it was occluded.
+
+    Such a frame is not a measurement. A sensor with noise never gives the same pose twice:
+    the repeat is a pose held through an occlusion (a streaming client repeating the last
+    value, NatNet's untracked rigid body read without its valid flag, NaN filled forward), or
+    a still body in a noise-free stream, and in both cases it carries no information the
+    previous frame did not. Fused as a fix, a held pose pulls the state towards where the body
+    was (the fail-safe finding F11: 4.3 % of rows beyond the 99 % bound, up to 64x); the IMU
+    cannot always tell a held pose from a still body (a slow slide without turning, a hold at
+    the start of a run before the velocity is known, an IMU arriving late: an adversarial
+    review of a rule that fused the repeats the IMU showed still found 16-207x). So every
+    repeat is read as occluded (``held_poses``): a still noise-free stream is dead-reckoned
+    from its last distinct frame and goes ``lost`` after ``max_bridge_s``."""
     if previous is None or not np.array_equal(position, previous[0]):
         return False
     if quaternion is None or previous[1] is None:
         return quaternion is None and previous[1] is None
     return bool(np.array_equal(quaternion, previous[1]))
-
-
-def held_pose(rotation: tuple[float, float, float], elapsed_s: float,
-              gyroscope_noise_density: float, bias_variance: float,
-              velocity: ArrayLike, velocity_covariance: ArrayLike, threshold: float,
-              min_angle: float = HELD_POSE_MIN_ANGLE,
-              min_speed: float = HELD_POSE_MIN_SPEED) -> bool:
-    """True when a frame that repeats the previous frame's pose bit for bit
-    (:func:`repeats_frame`) is a pose held through an occlusion rather than a still body.
-
-    A sensor with noise never gives the same pose twice; a still, noise-free or quantised body
-    does (synthetic data, a still rigid body in a rounded stream). The IMU-driven state tells
-    them apart: the pose is held when the body moved, by either of two tests at the gate's
-    chi-square(3) quantile ``threshold``:
-
-    * **turned**: if the body was still since the last fused fix, ``elapsed_s`` (T) ago, the
-      bias-corrected rotation the gyroscope integrated since then, ``rotation`` (rad, IMU
-      frame, ``Log(q_fix^-1 q_now)``), is noise and bias error alone, per axis of variance
-      ``Var(r) = sigma_g^2 T + P_bb T^2`` (``gyroscope_noise_density`` sigma_g
-      rad/s/sqrt(Hz), ``bias_variance`` P_bb (rad/s)^2); turned when
-      ``|r|^2 / Var(r) > threshold`` and ``|r| > min_angle``;
-    * **moving**: a still body has no velocity; the filter's ``velocity`` (3,) m/s at the
-      frame, with its covariance ``velocity_covariance`` P_vv (3, 3) (m/s)^2, says it moves
-      when ``v^T P_vv^-1 v > threshold`` and ``|v| > min_speed``.
-
-    The repeated pose is then not a measurement, and fusing it as one pulls the state towards
-    where the body was (the fail-safe finding F11: 4.3 % of rows beyond the 99 % bound, up to
-    64x). Neither test can tell before the filter knows its velocity and gyroscope bias (the
-    first fixes): a repeat is then fused as a still body's.
-    """
-    angle_squared = rotation[0] ** 2 + rotation[1] ** 2 + rotation[2] ** 2
-    if elapsed_s > 0.0 and angle_squared > min_angle * min_angle:
-        variance = (gyroscope_noise_density ** 2 * elapsed_s
-                    + bias_variance * elapsed_s * elapsed_s)
-        if not (variance > 0.0 and angle_squared / variance <= threshold):
-            return True
-    v = np.asarray(velocity, dtype=float)
-    if float(v @ v) <= min_speed * min_speed:
-        return False
-    try:
-        nis = float(v @ np.linalg.solve(np.asarray(velocity_covariance, dtype=float), v))
-    except np.linalg.LinAlgError:
-        return False
-    return not nis <= threshold
 
 
 # ---------------------------------------------------------------------------------------------

@@ -170,6 +170,7 @@ from kfusion.streamhealth import (
     TimeGuard,
     dead_reckoning_until,
     hold_horizon,
+    repeats_frame,
     status_durations,
     tracking_status,
 )
@@ -311,10 +312,10 @@ class Health:
         resets: calls to :meth:`Tracker.reset`.
         orientation_gated: mocap orientations rejected by the gate against the gyroscope (the
             fix's position was still used; Kalman only).
-        held_poses: frames that repeated the previous frame's pose bit for bit while the IMU
-            showed the body turning or moving: a pose held through an occlusion, read as
-            occluded (counted in ``mocap_occluded`` too;
-            :func:`kfusion.streamhealth.held_pose`; Kalman only).
+        held_poses: frames that repeated the previous frame's pose bit for bit: a pose held
+            through an occlusion (or a still body in a noise-free stream), not a measurement,
+            read as occluded (counted in ``mocap_occluded`` too;
+            :func:`kfusion.streamhealth.repeats_frame`).
         time_rebases: times consistent samples showed the clock really jumped (or the newest
             time was itself a glitch) and the streams restarted from the new time
             (:class:`kfusion.streamhealth.TimeGuard`).
@@ -617,7 +618,6 @@ class _Estimator(Protocol):
 
     def orientation_gated(self) -> int: ...
 
-    def held_poses(self) -> int: ...
 
     def snapshot(self) -> object:
         """The whole state, taken at mocap rate for the Tracker's checkpoints: keep it cheap."""
@@ -673,9 +673,6 @@ class _BaselineEstimator:
                                     self._outage_since_fix)
 
     def orientation_gated(self) -> int:
-        return 0
-
-    def held_poses(self) -> int:
         return 0
 
     def read(self, t: float, trust_model: bool = True,
@@ -841,9 +838,6 @@ class _KalmanEstimator:
     def orientation_gated(self) -> int:
         return int(self._fusion.counters["orientation_gated"])
 
-    def held_poses(self) -> int:
-        return int(self._fusion.counters["held_poses"])
-
     def snapshot(self) -> object:
         monitor = self.monitor
         if self._monitor_state is None:
@@ -938,6 +932,7 @@ class _Stream:
     cadence_t: float = -math.inf
     interval: float = math.inf
     waiting: tuple[tuple, tuple[ArrayLike, ArrayLike]] | None = None
+    held_poses: int = 0  # mocap only: frames repeating the previous one (occluded)
 
 
 def _locked(method: Any) -> Any:
@@ -1282,8 +1277,16 @@ class Tracker:
                 return self._reject(stream, BAD_QUATERNION)
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (point, rotation))
-        return self._admit_frame((t, MOCAP_STREAM, point, rotation, False, t),
-                                 (point, rotation))
+        pushed = (point, rotation)
+        held = stream.last_values is not None and repeats_frame(
+            point, _quaternion_or_none(rotation), (stream.last_values[0],
+                                                   _quaternion_or_none(stream.last_values[1])))
+        if held:  # the previous frame's pose again: not a measurement, an occluded frame
+            point, rotation = nan_position, np.full(4, np.nan)
+        outcome = self._admit_frame((t, MOCAP_STREAM, point, rotation, False, t), pushed)
+        if held and outcome.reason == OCCLUDED:
+            stream.held_poses += 1
+        return outcome
 
     @_locked
     def push_markers(self, t: float, markers: Mapping[str, ArrayLike | None]) -> PushOutcome:
@@ -1544,7 +1547,7 @@ class Tracker:
             longest_gap_s=gap, lost_transitions=counts.lost_transitions,
             state_resets=counts.state_resets, replays=self._replays, resets=self._resets,
             orientation_gated=self._estimator.orientation_gated(),
-            held_poses=self._estimator.held_poses(),
+            held_poses=mocap.held_poses,
             time_rebases=self._guard.rebases, markers_used=counts.markers_used,
             markers_rejected=counts.markers_rejected,
             clock_offset_s=math.nan if clock is None else clock.offset_s,
@@ -2008,6 +2011,11 @@ def _parameters(method: str, params: Any, profile: ImuProfile) -> Any:
 def _event_key(event: tuple) -> tuple[float, int]:
     """An event's (t, stream): its place in the fusion order."""
     return event[0], event[1]
+
+
+def _quaternion_or_none(quaternion: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """A pushed quaternion (4,), None where it is NaN (a position-only or occluded frame)."""
+    return None if math.isnan(float(quaternion[0])) else quaternion
 
 
 def _finite_reading(reading: _Reading, has_covariance: bool) -> bool:

@@ -65,7 +65,13 @@ from kfusion.calibration.specific_force import (
     specific_force_system,
 )
 from kfusion.conventions import matrix_from_wxyz, rotation_from_wxyz
-from kfusion.recording import ImuSamples, MocapFrames, Recording, on_mocap_clock
+from kfusion.recording import (
+    ImuSamples,
+    MocapFrames,
+    Recording,
+    on_mocap_clock,
+    without_held_frames,
+)
 
 CLOCK_TOLERANCE_S: Final = 0.010
 """s: a coarse (rate-correlation) clock offset beyond this is reported (1 m/s of arm speed
@@ -349,6 +355,8 @@ def diagnose(recording: Recording, *, imu_latency_s: float = 0.0) -> Diagnosis:
     info), with the IMU's events ``imu_latency_s`` (s) earlier than its mapped stamps, as the
     filter takes them (:func:`kfusion.kalman.events.imu_event_time`)."""
     notes: list[str] = []
+    # a pose held through an occlusion is no measurement: its steps would be read as motion
+    recording, _ = without_held_frames(recording)
     markers = marker_problem(recording)
     if markers:
         return Diagnosis([markers])

@@ -36,7 +36,13 @@ from kfusion.calibration.specific_force import (
 )
 from kfusion.conventions import GRAVITY_MAGNITUDE_RANGE, rotation_from_wxyz
 from kfusion.profiles import IMU_PROFILES
-from kfusion.recording import ImuNoise, ImuSamples, Recording, RecordingInfo
+from kfusion.recording import (
+    ImuNoise,
+    ImuSamples,
+    Recording,
+    RecordingInfo,
+    without_held_frames,
+)
 
 Array = NDArray[np.float64]
 
@@ -221,6 +227,7 @@ def calibrate_recording(recording: Recording, *, max_offset: float = 5.0) -> Sel
     Raises ValueError when the clocks cannot be correlated (no overlap, no rotation) or a
     given gravity contradicts the data.
     """
+    recording, _ = without_held_frames(recording)  # poses held through occlusions
     correlation = coarse_clock_offset(recording, max_offset=max_offset)
     clock_and_mount = calibrate_clock_and_mount(recording, correlation.offset)
     fit = clock_and_mount.fit

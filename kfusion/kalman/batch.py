@@ -30,7 +30,7 @@ from kfusion.monitor import (
     MonitorReport,
     scale_beyond_evidence,
 )
-from kfusion.recording import Recording, on_mocap_clock
+from kfusion.recording import Recording, on_mocap_clock, without_held_frames
 from kfusion.streamhealth import FIX_TIMEOUT_S, tracking_status
 from kfusion.track_file import TrackResult
 
@@ -571,6 +571,7 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
     (:func:`measurement_engine`)."""
     check_engine(engine)
     engine = measurement_engine(engine, measurement)
+    recording, held = without_held_frames(recording)  # poses held through occlusions
     params = resolve_parameters(recording, params, overrides)
     watcher = make_monitor(recording, params, monitor, engine)
     # without a monitor the compiled engine runs the whole loop in one kernel; with one (it
@@ -608,7 +609,7 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
     return FilterRun(result=result, x=recorder.x, P=recorder.P,
                      output_matrix=recorder.output_matrix, output_offset=recorder.output_offset,
                      outcome=recorder.outcome.astype(str), nis=recorder.nis,
-                     counters=recorder.counters, params=params,
+                     counters={**recorder.counters, "held_poses": held}, params=params,
                      monitor=None if watcher is None else watcher.report(),
                      variance_scale=scale)
 

@@ -21,8 +21,8 @@ State, in flat float arrays (numba compiles plain arrays best):
 * ``orientation`` (15,): ``q_global_imu`` [w, x, y, z] (0:4), gyroscope bias (4:7, rad/s),
   covariance ``(P_tt, P_tb, P_bb)`` (7:10), rotation since the last fix (10:13, rad), scale
   variance peak (13), initialised flag (14) (:class:`kfusion.kalman.orientation.OrientationState`);
-* ``scalars`` (:data:`SCALAR_COUNT`,): times, the held sample, flags, the previous frame and
-  the orientation at the last fix; ``NaN`` stands for the reference filter's ``None``;
+* ``scalars`` (:data:`SCALAR_COUNT`,): times, the held sample and flags; ``NaN`` stands for the
+  reference filter's ``None``;
 * ``counters`` (:data:`COUNTER_NAMES` order) as int64.
 
 Parameters go in as one float array ``config`` (:func:`pack_config`). numba is imported only
@@ -62,10 +62,7 @@ ACCELEROMETER_EXTRA, GYROSCOPE_EXTRA = 9, 10
 LOW_PASS = 11  # low-passed specific force (3); NaN in LOW_PASS: none yet
 LAST_FIX, LAST_NIS, LAST_ORIENTATION_FIX, IMU_INTERVAL = 14, 15, 16, 17
 INITIALISED_FLAG, LAST_FRAME_FUSED, OUTAGE_SINCE_FIX = 18, 19, 20
-# the previous frame's position (3) and quaternion (4) as given, NaN when occluded or without
-# one; the orientation just after the last fix (4), NaN before one (KalmanFusion._held)
-PREVIOUS_POSITION, PREVIOUS_QUATERNION, ORIENTATION_AT_FIX = 21, 24, 28
-SCALAR_COUNT: Final = 32
+SCALAR_COUNT: Final = 21
 
 # config: indices into the packed parameters
 (C_ACC_DENSITY, C_ACC_WALK, C_GYRO_DENSITY, C_GYRO_WALK, C_POSITION_NOISE,
@@ -85,7 +82,7 @@ COUNTER_INDEX: Final = {name: index for index, name in enumerate(
     ("predictions", "imu_rejected", "imu_duplicates", "imu_dropouts", "imu_late",
      "accelerometer_saturated", "gyroscope_saturated", "updates", "occluded", "gated",
      "reacquired", "initialised", "no_orientation", "resets", "imu_outages",
-     "orientation_gated", "markers_used", "markers_gated", "held_poses"))}
+     "orientation_gated", "markers_used", "markers_gated"))}
 """Position of each of :data:`kfusion.kalman.filter.COUNTER_NAMES` in the counters array (the
 kernels index it by these numbers; the marker counts stay 0: no marker-level fusion here)."""
 
@@ -158,8 +155,6 @@ _NO_IMU_DENSITY = streamhealth.NO_IMU_ACCELERATION_DENSITY
 _HOLD_MIN = streamhealth.HOLD_MIN_S
 _HOLD_INTERVALS = streamhealth.HOLD_INTERVALS
 _ORIENTATION_MIN_ANGLE = streamhealth.ORIENTATION_GATE_MIN_ANGLE
-_HELD_MIN_ANGLE = streamhealth.HELD_POSE_MIN_ANGLE
-_HELD_MIN_SPEED = streamhealth.HELD_POSE_MIN_SPEED
 _NOISE_QUANTILE = model.NOISE_CHANGE_QUANTILE
 _LOW_PASS_TAU = model.LOW_PASS_TIME_CONSTANT
 _SCALE_COHERENCE = model.SCALE_ERROR_COHERENCE_S
@@ -972,59 +967,7 @@ def output_map_into(q_global_imu, config, H, offset, rotation):
 
 
 @njit(cache=True)
-def repeats_previous(visible, z, q_global_body, has_quaternion, scalars):
-    """The frame repeats the previous one bit for bit (:func:`kfusion.streamhealth.
-    repeats_frame`); then keeps this frame as the previous one (NaN when occluded)."""
-    repeated = visible and z[0] == scalars[PREVIOUS_POSITION] \
-        and z[1] == scalars[PREVIOUS_POSITION + 1] and z[2] == scalars[PREVIOUS_POSITION + 2]
-    if repeated:
-        if has_quaternion:
-            for i in range(4):
-                if q_global_body[i] != scalars[PREVIOUS_QUATERNION + i]:
-                    repeated = False
-        else:
-            repeated = math.isnan(scalars[PREVIOUS_QUATERNION])
-    for i in range(3):
-        scalars[PREVIOUS_POSITION + i] = z[i] if visible else math.nan
-    for i in range(4):
-        scalars[PREVIOUS_QUATERNION + i] = q_global_body[i] if visible and has_quaternion \
-            else math.nan
-    return repeated
-
-
-@njit(cache=True)
-def held_pose(t, x, P, orientation, scalars, config):
-    """:meth:`KalmanFusion._held` for a frame that repeats the previous one: the gyroscope's
-    turn since the last fix, ``r = Log(q_fix^-1 q)``, fails ``|r|^2 / (sigma_g^2 T + P_bb T^2)
-    <= gate`` beyond the angle floor, or the velocity fails ``v^T P_vv^-1 v <= gate`` beyond
-    the speed floor (:func:`kfusion.streamhealth.held_pose`)."""
-    if orientation[14] == 0.0 or math.isnan(scalars[LAST_FIX]) \
-            or math.isnan(scalars[ORIENTATION_AT_FIX]):
-        return False
-    rotation = quaternion_log(quaternion_product(
-        conjugate(scalars[ORIENTATION_AT_FIX:ORIENTATION_AT_FIX + 4]), orientation[0:4]))
-    elapsed = t - scalars[LAST_FIX]
-    angle_squared = rotation[0] ** 2 + rotation[1] ** 2 + rotation[2] ** 2
-    if elapsed > 0.0 and angle_squared > _HELD_MIN_ANGLE * _HELD_MIN_ANGLE:
-        variance = config[C_GYRO_DENSITY] ** 2 * elapsed + orientation[9] * elapsed * elapsed
-        if not (variance > 0.0 and angle_squared / variance <= config[C_GATE]):
-            return True
-    v = int(config[C_VELOCITY])
-    speed_squared = x[v] * x[v] + x[v + 1] * x[v + 1] + x[v + 2] * x[v + 2]
-    if speed_squared <= _HELD_MIN_SPEED * _HELD_MIN_SPEED:
-        return False
-    inverse = np.empty((3, 3))
-    inverse3(P[v:v + 3, v:v + 3], inverse)
-    nis = 0.0
-    for i in range(3):
-        for j in range(3):
-            nis += x[v + i] * inverse[i, j] * x[v + j]
-    return not nis <= config[C_GATE]
-
-
-@njit(cache=True)
-def mark_fix(t, scalars, orientation, counters):
-    scalars[ORIENTATION_AT_FIX:ORIENTATION_AT_FIX + 4] = orientation[0:4]
+def mark_fix(t, scalars, counters):
     scalars[OUTAGE_SINCE_FIX] = 0.0
     scalars[LAST_FIX] = t
     scalars[LAST_FRAME_FUSED] = 1.0
@@ -1032,7 +975,7 @@ def mark_fix(t, scalars, orientation, counters):
 
 
 @njit(cache=True)
-def initialise(t, z, H, offset, x, P, orientation, scalars, config, counters):
+def initialise(t, z, H, offset, x, P, scalars, config, counters):
     """First fix: ``x = [z - c, 0, 0(, 0)]``, ``P = P0`` (:func:`kfusion.kalman.model.
     initial_covariance`, with the lever-arm correlation ``sigma_l^2 R_gb``)."""
     p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
@@ -1057,7 +1000,7 @@ def initialise(t, z, H, offset, x, P, orientation, scalars, config, counters):
                 P[p + i, lever_state + j] = lever_variance * R
                 P[lever_state + j, p + i] = lever_variance * R
     scalars[INITIALISED_FLAG] = 1.0
-    mark_fix(t, scalars, orientation, counters)
+    mark_fix(t, scalars, counters)
     counters[11] += 1
 
 
@@ -1076,12 +1019,7 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
             scalars[GYROSCOPE:GYROSCOPE + 3], x, P, orientation, scalars, config, counters,
             interval, work)
     scalars[LAST_FRAME_FUSED] = 0.0
-    repeated = repeats_previous(visible, z, q_global_body, has_quaternion, scalars)
     if not visible:
-        counters[8] += 1
-        return _OCCLUDED, math.nan, False
-    if repeated and held_pose(t, x, P, orientation, scalars, config):
-        counters[18] += 1
         counters[8] += 1
         return _OCCLUDED, math.nan, False
     has_orientation = has_quaternion
@@ -1115,7 +1053,7 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
     output_map_into(q_global_imu if has_orientation else orientation[0:4], config, H, offset,
                     work_views(work, n)[6])
     if scalars[INITIALISED_FLAG] == 0.0:
-        initialise(t, z, H, offset, x, P, orientation, scalars, config, counters)
+        initialise(t, z, H, offset, x, P, scalars, config, counters)
         return _INITIALISED, math.nan, False
     noise_variance = config[C_POSITION_NOISE] ** 2
     for k in range(3):
@@ -1162,7 +1100,7 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
     if has_orientation:
         orientation_correct(orientation, q_global_imu, config)
         scalars[LAST_ORIENTATION_FIX] = t
-    mark_fix(t, scalars, orientation, counters)
+    mark_fix(t, scalars, counters)
     if kind == _REACQUIRED:
         counters[10] += 1
     return kind, nis, True

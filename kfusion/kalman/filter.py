@@ -149,7 +149,7 @@ COUNTER_NAMES: Final = (
     "predictions", "imu_rejected", "imu_duplicates", "imu_dropouts", "imu_late",
     "accelerometer_saturated", "gyroscope_saturated",
     "updates", "occluded", "gated", "reacquired", "initialised", "no_orientation", "resets",
-    "imu_outages", "orientation_gated", "markers_used", "markers_gated", "held_poses",
+    "imu_outages", "orientation_gated", "markers_used", "markers_gated",
 )
 """Keys of :attr:`KalmanFusion.counters`. ``updates`` counts every fix fused (accepted,
 reacquired and initialised); ``no_orientation`` counts fixes without a quaternion before the
@@ -161,9 +161,7 @@ samples with NaN, inf or a value beyond :data:`kfusion.kalman.model.IMPLAUSIBLE_
 ``orientation_gated`` fixes whose orientation failed the gyroscope gate (position still used);
 ``markers_used`` and ``markers_gated`` markers fused and rejected one by one by
 :meth:`KalmanFusion.update_markers` (a frame counts in ``updates`` when one of its markers was
-fused, in ``gated`` when all its visible markers were rejected); ``held_poses`` frames that
-repeated the previous frame's pose while the gyroscope showed the body turning, read as
-occluded (counted in ``occluded`` too; :func:`kfusion.streamhealth.held_pose`)."""
+fused, in ``gated`` when all its visible markers were rejected)."""
 
 Vector3 = tuple[float, float, float]
 
@@ -258,8 +256,6 @@ class KalmanSnapshot:
     imu_interval: float | None = None
     last_frame_fused: bool = False
     frames_on_gyroscope: int = 0
-    previous_frame: tuple[NDArray[np.float64], NDArray[np.float64] | None] | None = None
-    orientation_at_fix: Quaternion | None = None
 
 
 def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
@@ -401,11 +397,6 @@ class KalmanFusion:
         # marker frames fused with the gyroscope's orientation since the last orientation fix
         # (:meth:`update_markers`: their orientation errors are one and the same)
         self._frames_on_gyroscope = 0
-        # the previous rigid-body frame's (z, q_global_body) as given (None: occluded, or a
-        # marker frame), and the orientation just after the last fix: a frame repeating the
-        # previous one bit for bit is tested against the gyroscope's turn since then (_held)
-        self._previous_frame: tuple[NDArray[np.float64], NDArray[np.float64] | None] | None = None
-        self._orientation_at_fix: Quaternion | None = None
         self._counters = dict.fromkeys(COUNTER_NAMES, 0)
         # smoother support (see kfusion.kalman.smoother): product of the transitions since the
         # smoother last reset it, and the prior of the last fused fix
@@ -634,8 +625,6 @@ class KalmanFusion:
             imu_interval=self._imu_interval,
             last_frame_fused=self._last_frame_fused,
             frames_on_gyroscope=self._frames_on_gyroscope,
-            previous_frame=self._previous_frame,
-            orientation_at_fix=self._orientation_at_fix,
         )
 
     def restore(self, snapshot: KalmanSnapshot) -> None:
@@ -667,8 +656,6 @@ class KalmanFusion:
         self._imu_interval = snapshot.imu_interval
         self._last_frame_fused = snapshot.last_frame_fused
         self._frames_on_gyroscope = snapshot.frames_on_gyroscope
-        self._previous_frame = snapshot.previous_frame
-        self._orientation_at_fix = snapshot.orientation_at_fix
 
     # ------------------------------------------------------------------ internals
 
@@ -841,15 +828,7 @@ class KalmanFusion:
         self._advance(t)
         self._prior = None
         self._last_frame_fused = False  # until this frame's fix is fused (_mark_fix)
-        previous = self._previous_frame
-        self._previous_frame = None if z is None else (
-            np.array(z, dtype=float), None if q_global_body is None
-            else np.array(q_global_body, dtype=float))
         if z is None:
-            self._counters["occluded"] += 1
-            return UpdateOutcome(t, OCCLUDED, math.nan)
-        if self._held(t, z, q_global_body, previous):
-            self._counters["held_poses"] += 1
             self._counters["occluded"] += 1
             return UpdateOutcome(t, OCCLUDED, math.nan)
         q_global_imu: Quaternion | None = None
@@ -917,7 +896,6 @@ class KalmanFusion:
         self._advance(t)
         self._prior = None
         self._last_frame_fused = False  # until this frame's fix is fused (_mark_fix)
-        self._previous_frame = None  # a marker frame: no rigid-body pose to repeat
         if len(points) == 0:
             self._counters["occluded"] += 1
             return UpdateOutcome(t, OCCLUDED, math.nan)
@@ -1084,26 +1062,7 @@ class KalmanFusion:
             innovation, state.covariance[0], self._orientation.measurement_variance
             if measurement_variance is None else measurement_variance, self._gate)
 
-    def _held(self, t: float, z: NDArray[np.float64], q_global_body: NDArray[np.float64] | None,
-              previous: tuple[NDArray[np.float64], NDArray[np.float64] | None] | None) -> bool:
-        """The frame repeats the ``previous`` one bit for bit while the gyroscope turned since
-        the last fix or the state moves (:func:`kfusion.streamhealth.held_pose`): a pose held
-        through an occlusion, not a measurement. False before a fix and an orientation."""
-        state = self._orientation.state
-        if self._last_fix is None or self._orientation_at_fix is None or \
-                not state.initialised or not streamhealth.repeats_frame(z, q_global_body,
-                                                                        previous):
-            return False
-        rotation = quaternion_log(quaternion_product(conjugate(self._orientation_at_fix),
-                                                     state.quaternion))
-        velocity = model.VELOCITY
-        return streamhealth.held_pose(rotation, t - self._last_fix,
-                                      self.params.gyroscope_noise_density,
-                                      state.covariance[2], self._kf.x[velocity],
-                                      self._kf.P[velocity, velocity], self._gate)
-
     def _mark_fix(self, t: float) -> None:
-        self._orientation_at_fix = self._orientation.state.quaternion
         self._outage_since_fix = False
         self._last_fix = t
         self._last_frame_fused = True

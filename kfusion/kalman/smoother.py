@@ -84,7 +84,12 @@ from kfusion.monitor import (
     nis_matching_scale,
     required_scale,
 )
-from kfusion.recording import Recording, occlusion_durations, occlusion_runs
+from kfusion.recording import (
+    Recording,
+    occlusion_durations,
+    occlusion_runs,
+    without_held_frames,
+)
 from kfusion.track_file import TrackResult
 
 if TYPE_CHECKING:
@@ -400,6 +405,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     ``stepwise`` (the reference the two passes equal bit for bit)."""
     check_engine(engine)
     engine = measurement_engine(engine, measurement)
+    recording, _ = without_held_frames(recording)  # poses held through occlusions
     params = resolve_parameters(recording, params, overrides)
     watcher = make_monitor(recording, params, monitor, engine)
     m = len(recording.mocap)
