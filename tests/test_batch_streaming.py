@@ -258,7 +258,9 @@ def test_the_latency_moves_imu_samples_in_time():
     recording = Recording(
         imu=ImuSamples(t=np.array([0.0, 0.25, 0.5]), accelerometer=np.tile(-gravity, (3, 1)),
                        gyroscope=zeros),
-        mocap=MocapFrames(t=np.array([0.125, 0.25]), position=np.zeros((2, 3)),
+        # two distinct poses (a pose repeated bit for bit is a held one, read as occluded)
+        mocap=MocapFrames(t=np.array([0.125, 0.25]), position=np.array([[0.0, 0.0, 0.0],
+                                                                        [1e-5, 0.0, 0.0]]),
                           quaternion=np.tile([1.0, 0.0, 0.0, 0.0], (2, 1))),
         info=RecordingInfo(imu_to_body=np.array([1.0, 0.0, 0.0, 0.0]), gravity=gravity))
     params = KalmanParameters.from_profiles("mpu9255", None, imu_latency_s=0.25)
@@ -267,8 +269,8 @@ def test_the_latency_moves_imu_samples_in_time():
     assert list(run.outcome) == ["initialised", "accepted"]
     # one outcome vocabulary: the Tracker names the first fix as the batch does
     tracker = Tracker(recording.info.imu_to_body, gravity, params=params)
-    reasons = [tracker.push_mocap(t, np.zeros(3), [1.0, 0.0, 0.0, 0.0]).reason
-               for t in recording.mocap.t]
+    reasons = [tracker.push_mocap(t, p, [1.0, 0.0, 0.0, 0.0]).reason
+               for t, p in zip(recording.mocap.t, recording.mocap.position, strict=True)]
     assert reasons == ["initialised", "accepted"]
     fusion = KalmanFusion(recording.info.imu_to_body, gravity, params)
     fusion.predict(0.5, -gravity, np.zeros(3))
