@@ -63,6 +63,7 @@ from kfusion.guards import (
     short_repr,
 )
 from kfusion.profiles import IMU_PROFILES, imu_profile
+from kfusion.streamhealth import RECENT_POSITIONS
 
 IMU_FILE = "imu.csv"
 MOCAP_FILE = "mocap.csv"
@@ -399,15 +400,18 @@ class Recording:
 
 
 def held_frames(mocap: MocapFrames) -> NDArray[np.bool_]:
-    """(m,) True where a visible frame (position and quaternion) repeats the previous visible
-    frame's pose bit for bit (:func:`kfusion.streamhealth.repeats_frame`, the rule and why: a
-    pose held through an occlusion, not a measurement). The BROAD trials have none."""
-    position, quaternion = np.asarray(mocap.position), np.asarray(mocap.quaternion)
-    held = np.zeros(len(position), dtype=bool)
-    if len(position) > 1:
-        visible = np.asarray(mocap.visible, dtype=bool)
-        held[1:] = (visible[1:] & visible[:-1] & (position[1:] == position[:-1]).all(axis=1)
-                    & (quaternion[1:] == quaternion[:-1]).all(axis=1))
+    """(m,) True where a visible frame repeats bit for bit the position of one of the
+    :data:`~kfusion.streamhealth.RECENT_POSITIONS` visible frames before it
+    (:func:`kfusion.streamhealth.repeats_position`: the rule and why; the Tracker keeps the
+    same :class:`~kfusion.streamhealth.RecentPositions` at push). The BROAD trials have
+    none."""
+    visible = np.flatnonzero(np.asarray(mocap.visible, dtype=bool))
+    position = np.asarray(mocap.position)[visible]
+    repeated = np.zeros(len(visible), dtype=bool)
+    for lag in range(1, min(RECENT_POSITIONS, len(visible) - 1) + 1):
+        repeated[lag:] |= (position[lag:] == position[:-lag]).all(axis=1)
+    held = np.zeros(len(mocap.visible), dtype=bool)
+    held[visible] = repeated
     return held
 
 

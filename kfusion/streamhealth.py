@@ -19,9 +19,9 @@ streaming filter (:mod:`kfusion.kalman.filter`), the batch driver and smoother
   samples) or when the present was itself a glitch (samples of every stream far behind it).
 * **Orientation fixes.** :func:`orientation_gated` gates a mocap orientation against the
   gyroscope-propagated one.
-* **Held poses.** A frame repeating the previous frame's pose bit for bit (:func:`repeats_frame`)
-  is not a measurement: a pose held through an occlusion by a client repeating the last value,
-  read as occluded.
+* **Held poses.** A frame repeating a recent frame's position bit for bit
+  (:func:`repeats_position`) is not a measurement: a pose held through an occlusion by a client
+  repeating the last value, read as occluded.
 * **Outages counted.** :class:`ImuWatch` counts IMU outages once each, whether they end with a
   late sample or are seen from the mocap stream while the IMU is silent.
 """
@@ -29,6 +29,8 @@ streaming filter (:mod:`kfusion.kalman.filter`), the batch driver and smoother
 from __future__ import annotations
 
 import math
+from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -233,29 +235,48 @@ def orientation_gated(innovation: tuple[float, float, float], angle_variance: fl
     return not (S > 0.0 and angle_squared / S <= threshold)
 
 
-def repeats_frame(position: NDArray[np.float64], quaternion: NDArray[np.float64] | None,
-                  previous: tuple[NDArray[np.float64], NDArray[np.float64] | None] | None
-                  ) -> bool:
-    """True when a frame's ``position`` (3,) m and ``quaternion`` (4,) or None equal the
-    ``previous`` frame's (position, quaternion) bit for bit (both without a quaternion, or both
-    with the same one); ``previous`` None: no previous frame, or it was occluded.
+RECENT_POSITIONS: Final = 10
+"""How many of the latest visible frames a new frame's position is compared with
+(:class:`RecentPositions`): a client repeating the last value, cycling through its last few,
+or alternating a held value with NaN frames, repeats one of them."""
 
-    Such a frame is not a measurement. A sensor with noise never gives the same pose twice:
-    the repeat is a pose held through an occlusion (a streaming client repeating the last
-    value, NatNet's untracked rigid body read without its valid flag, NaN filled forward), or
-    a still body in a noise-free stream, and in both cases it carries no information the
-    previous frame did not. Fused as a fix, a held pose pulls the state towards where the body
-    was (the fail-safe finding F11: 4.3 % of rows beyond the 99 % bound, up to 64x); the IMU
-    cannot always tell a held pose from a still body (a slow slide without turning, a hold at
-    the start of a run before the velocity is known, an IMU arriving late: an adversarial
-    review of a rule that fused the repeats the IMU showed still found 16-207x). So every
-    repeat is read as occluded (``held_poses``): a still noise-free stream is dead-reckoned
-    from its last distinct frame and goes ``lost`` after ``max_bridge_s``."""
-    if previous is None or not np.array_equal(position, previous[0]):
-        return False
-    if quaternion is None or previous[1] is None:
-        return quaternion is None and previous[1] is None
-    return bool(np.array_equal(quaternion, previous[1]))
+
+def repeats_position(position: NDArray[np.float64],
+                     recent: Sequence[NDArray[np.float64]]) -> bool:
+    """True when a frame's ``position`` (3,) m equals one of the ``recent`` positions (those of
+    the latest visible frames, :class:`RecentPositions`) bit for bit.
+
+    Such a frame is not a measurement. A position sensor with noise never gives the same
+    position twice: the repeat is a pose held through an occlusion (a streaming client
+    repeating the last value, NatNet's untracked rigid body read without its valid flag, NaN
+    filled forward, a client cycling through its last frames or holding the position while
+    the orientation comes fresh), or a still body in a noise-free stream, and in every case it
+    carries no information the first frame did not. Fused as a fix, a held pose pulls the
+    state towards where the body was (the fail-safe finding F11: 4.3 % of rows beyond the
+    99 % bound, up to 64x); the IMU cannot always tell a held pose from a still body (a slow
+    slide without turning, a hold at the start of a run before the velocity is known, an IMU
+    arriving late: an adversarial review of a rule that fused the repeats the IMU showed still
+    found 16-207x). So every repeat is read as occluded (``held_poses``): a still noise-free
+    stream is dead-reckoned from its last distinct frame and goes ``lost`` after
+    ``max_bridge_s``."""
+    return any(np.array_equal(position, earlier) for earlier in recent)
+
+
+@dataclass
+class RecentPositions:
+    """The positions of a mocap stream's :data:`RECENT_POSITIONS` latest visible frames, held
+    ones included, in time order (:func:`repeats_position`; the batch form is
+    :func:`kfusion.recording.held_frames`)."""
+
+    positions: deque[NDArray[np.float64]] = field(
+        default_factory=lambda: deque(maxlen=RECENT_POSITIONS))
+
+    def held(self, position: NDArray[np.float64]) -> bool:
+        """Whether a visible frame's ``position`` (3,) m repeats a recent one; it is kept as
+        the newest either way."""
+        repeated = repeats_position(position, self.positions)
+        self.positions.append(np.array(position, dtype=float))
+        return repeated
 
 
 # ---------------------------------------------------------------------------------------------

@@ -167,10 +167,10 @@ from kfusion.streamhealth import (
     IMPLAUSIBLE,
     REBASE,
     ImuWatch,
+    RecentPositions,
     TimeGuard,
     dead_reckoning_until,
     hold_horizon,
-    repeats_frame,
     status_durations,
     tracking_status,
 )
@@ -312,10 +312,10 @@ class Health:
         resets: calls to :meth:`Tracker.reset`.
         orientation_gated: mocap orientations rejected by the gate against the gyroscope (the
             fix's position was still used; Kalman only).
-        held_poses: frames that repeated the previous frame's pose bit for bit: a pose held
-            through an occlusion (or a still body in a noise-free stream), not a measurement,
-            read as occluded (counted in ``mocap_occluded`` too;
-            :func:`kfusion.streamhealth.repeats_frame`).
+        held_poses: frames whose position repeated bit for bit one of the latest visible
+            frames': a pose held through an occlusion (or a still body in a noise-free
+            stream), not a measurement, read as occluded (counted in ``mocap_occluded`` too;
+            :func:`kfusion.streamhealth.repeats_position`).
         time_rebases: times consistent samples showed the clock really jumped (or the newest
             time was itself a glitch) and the streams restarted from the new time
             (:class:`kfusion.streamhealth.TimeGuard`).
@@ -932,7 +932,10 @@ class _Stream:
     cadence_t: float = -math.inf
     interval: float = math.inf
     waiting: tuple[tuple, tuple[ArrayLike, ArrayLike]] | None = None
-    held_poses: int = 0  # mocap only: frames repeating the previous one (occluded)
+    # mocap only: the latest visible positions (kept by a reset: a repeat is no measurement
+    # whatever the estimator) and the frames that repeated one of them (read as occluded)
+    recent: RecentPositions = field(default_factory=RecentPositions)
+    held_poses: int = 0
 
 
 def _locked(method: Any) -> Any:
@@ -1278,10 +1281,8 @@ class Tracker:
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (point, rotation))
         pushed = (point, rotation)
-        held = stream.last_values is not None and repeats_frame(
-            point, _quaternion_or_none(rotation), (stream.last_values[0],
-                                                   _quaternion_or_none(stream.last_values[1])))
-        if held:  # the previous frame's pose again: not a measurement, an occluded frame
+        held = not math.isnan(float(point[0])) and stream.recent.held(point)
+        if held:  # a recent frame's position again: not a measurement, an occluded frame
             point, rotation = nan_position, np.full(4, np.nan)
         outcome = self._admit_frame((t, MOCAP_STREAM, point, rotation, False, t), pushed)
         if held and outcome.reason == OCCLUDED:
@@ -2011,11 +2012,6 @@ def _parameters(method: str, params: Any, profile: ImuProfile) -> Any:
 def _event_key(event: tuple) -> tuple[float, int]:
     """An event's (t, stream): its place in the fusion order."""
     return event[0], event[1]
-
-
-def _quaternion_or_none(quaternion: NDArray[np.float64]) -> NDArray[np.float64] | None:
-    """A pushed quaternion (4,), None where it is NaN (a position-only or occluded frame)."""
-    return None if math.isnan(float(quaternion[0])) else quaternion
 
 
 def _finite_reading(reading: _Reading, has_covariance: bool) -> bool:
