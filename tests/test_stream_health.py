@@ -625,3 +625,21 @@ def test_a_still_noise_free_stream_is_dead_reckoned_then_lost():
                 assert status != TRACKED, time
     assert tracker.health.held_poses == len(t) // mocap_every - 1
     assert tracker.push_mocap(2.0, [0.3, 0.1, 1.2 + 1e-5], [1.0, 0.0, 0.0, 0.0]).accepted
+
+
+def test_check_names_a_stream_of_repeated_positions():
+    """A stream whose frames mostly repeat a recent position (a client holding the last
+    value, a noise-free still body) is refused by the diagnosis with that reason, not with a
+    misleading "no time overlap"; a few repeats are a note."""
+    import dataclasses as dc
+
+    from kfusion.calibration.diagnosis import diagnose
+
+    recording, held = held_recording(seed=2, duration=8.0)
+    assert any("repeat a recent frame's position" in note for note in diagnose(held).notes)
+    mocap = recording.mocap
+    frozen = recording.with_mocap(dc.replace(mocap, position=np.tile(mocap.position[0],
+                                                                     (len(mocap), 1))))
+    problems = diagnose(frozen).problems
+    assert len(problems) == 1 and problems[0].startswith("mocap: ") and \
+        "repeat a recent frame's position bit for bit" in problems[0]

@@ -356,7 +356,16 @@ def diagnose(recording: Recording, *, imu_latency_s: float = 0.0) -> Diagnosis:
     filter takes them (:func:`kfusion.kalman.events.imu_event_time`)."""
     notes: list[str] = []
     # a pose held through an occlusion is no measurement: its steps would be read as motion
-    recording, _ = without_held_frames(recording)
+    visible = int(recording.mocap.visible.sum())
+    recording, held = without_held_frames(recording)
+    if held:
+        text = (f"{held} of {visible} visible mocap frames repeat a recent frame's position "
+                "bit for bit (a client holding the last value through occlusions, or a "
+                "noise-free stream): read as occluded")
+        if 2 * held > visible:
+            return Diagnosis([f"mocap: {text}, too few are left; export occluded frames as "
+                              "empty (NaN), or give a noise-free stream its sensor's noise"])
+        notes.append(text)
     markers = marker_problem(recording)
     if markers:
         return Diagnosis([markers])
