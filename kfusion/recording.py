@@ -63,7 +63,7 @@ from kfusion.guards import (
     short_repr,
 )
 from kfusion.profiles import IMU_PROFILES, imu_profile
-from kfusion.streamhealth import RECENT_POSITIONS
+from kfusion.streamhealth import RECENT_POSES
 
 IMU_FILE = "imu.csv"
 MOCAP_FILE = "mocap.csv"
@@ -400,16 +400,15 @@ class Recording:
 
 
 def held_frames(mocap: MocapFrames) -> NDArray[np.bool_]:
-    """(m,) True where a visible frame repeats bit for bit the position of one of the
-    :data:`~kfusion.streamhealth.RECENT_POSITIONS` visible frames before it
-    (:func:`kfusion.streamhealth.repeats_position`: the rule and why; the Tracker keeps the
-    same :class:`~kfusion.streamhealth.RecentPositions` at push). The BROAD trials have
-    none."""
+    """(m,) True where a visible frame repeats bit for bit the pose (position and quaternion)
+    of one of the :data:`~kfusion.streamhealth.RECENT_POSES` visible frames before it
+    (:func:`kfusion.streamhealth.repeats_pose`: the rule and why; the Tracker keeps the same
+    :class:`~kfusion.streamhealth.RecentPoses` at push). The BROAD trials have none."""
     visible = np.flatnonzero(np.asarray(mocap.visible, dtype=bool))
-    position = np.asarray(mocap.position)[visible]
+    pose = np.hstack([np.asarray(mocap.position), np.asarray(mocap.quaternion)])[visible]
     repeated = np.zeros(len(visible), dtype=bool)
-    for lag in range(1, min(RECENT_POSITIONS, len(visible) - 1) + 1):
-        repeated[lag:] |= (position[lag:] == position[:-lag]).all(axis=1)
+    for lag in range(1, min(RECENT_POSES, len(visible) - 1) + 1):
+        repeated[lag:] |= (pose[lag:] == pose[:-lag]).all(axis=1)
     held = np.zeros(len(mocap.visible), dtype=bool)
     held[visible] = repeated
     return held

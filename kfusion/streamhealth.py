@@ -19,9 +19,9 @@ streaming filter (:mod:`kfusion.kalman.filter`), the batch driver and smoother
   samples) or when the present was itself a glitch (samples of every stream far behind it).
 * **Orientation fixes.** :func:`orientation_gated` gates a mocap orientation against the
   gyroscope-propagated one.
-* **Held poses.** A frame repeating a recent frame's position bit for bit
-  (:func:`repeats_position`) is not a measurement: a pose held through an occlusion by a client
-  repeating the last value, read as occluded.
+* **Held poses.** A frame repeating a recent frame's pose bit for bit (:func:`repeats_pose`)
+  is not a measurement: a pose held through an occlusion by a client repeating the last value,
+  read as occluded.
 * **Outages counted.** :class:`ImuWatch` counts IMU outages once each, whether they end with a
   late sample or are seen from the mocap stream while the IMU is silent.
 """
@@ -235,48 +235,54 @@ def orientation_gated(innovation: tuple[float, float, float], angle_variance: fl
     return not (S > 0.0 and angle_squared / S <= threshold)
 
 
-RECENT_POSITIONS: Final = 10
-"""How many of the latest visible frames a new frame's position is compared with
-(:class:`RecentPositions`): a client repeating the last value, cycling through its last few,
-or alternating a held value with NaN frames, repeats one of them."""
+RECENT_POSES: Final = 10
+"""How many of the latest visible frames a new frame's pose is compared with
+(:class:`RecentPoses`): a client repeating the last value, cycling through its last few, or
+alternating a held value with NaN frames, repeats one of them."""
 
 
-def repeats_position(position: NDArray[np.float64],
-                     recent: Sequence[NDArray[np.float64]]) -> bool:
-    """True when a frame's ``position`` (3,) m equals one of the ``recent`` positions (those of
-    the latest visible frames, :class:`RecentPositions`) bit for bit.
+def repeats_pose(position: NDArray[np.float64], quaternion: NDArray[np.float64],
+                 recent: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]]) -> bool:
+    """True when a frame's ``position`` (3,) m and ``quaternion`` (4,) (NaN: none) equal one
+    of the ``recent`` poses (those of the latest visible frames, :class:`RecentPoses`) bit
+    for bit, a missing quaternion matching a missing one.
 
-    Such a frame is not a measurement. A position sensor with noise never gives the same
-    position twice: the repeat is a pose held through an occlusion (a streaming client
-    repeating the last value, NatNet's untracked rigid body read without its valid flag, NaN
-    filled forward, a client cycling through its last frames or holding the position while
-    the orientation comes fresh), or a still body in a noise-free stream, and in every case it
-    carries no information the first frame did not. Fused as a fix, a held pose pulls the
-    state towards where the body was (the fail-safe finding F11: 4.3 % of rows beyond the
-    99 % bound, up to 64x); the IMU cannot always tell a held pose from a still body (a slow
-    slide without turning, a hold at the start of a run before the velocity is known, an IMU
-    arriving late: an adversarial review of a rule that fused the repeats the IMU showed still
-    found 16-207x). So every repeat is read as occluded (``held_poses``): a still noise-free
-    stream is dead-reckoned from its last distinct frame and goes ``lost`` after
-    ``max_bridge_s``."""
-    return any(np.array_equal(position, earlier) for earlier in recent)
+    Such a frame is not a measurement. A sensor with noise never gives the same pose twice:
+    the repeat is a pose held through an occlusion (a streaming client repeating the last
+    value, NatNet's untracked rigid body read without its valid flag, NaN filled forward, a
+    client cycling through its last frames), or a still body in a noise-free stream, and in
+    every case it carries no information the first frame did not. Fused as a fix, a held pose
+    pulls the state towards where the body was (the fail-safe finding F11: 4.3 % of rows
+    beyond the 99 % bound, up to 64x); the IMU cannot always tell a held pose from a still
+    body (a slow slide without turning, a hold at the start of a run before the velocity is
+    known, an IMU arriving late: an adversarial review of a rule that fused the repeats the
+    IMU showed still found 16-207x). So every repeat is read as occluded (``held_poses``): a
+    still noise-free stream is dead-reckoned from its last distinct frame and goes ``lost``
+    after ``max_bridge_s``. The position alone is not enough: a noise-free body turning about
+    its origin keeps its position (so a client holding the position while the quaternion
+    comes fresh is not caught)."""
+    return any(np.array_equal(position, earlier) and
+               np.array_equal(quaternion, earlier_quaternion, equal_nan=True)
+               for earlier, earlier_quaternion in recent)
 
 
 @dataclass
-class RecentPositions:
-    """The positions of a mocap stream's :data:`RECENT_POSITIONS` latest visible frames, held
-    ones included, in time order (:func:`repeats_position`; the batch form is
+class RecentPoses:
+    """The poses of a mocap stream's :data:`RECENT_POSES` latest visible frames, held ones
+    included, in time order (:func:`repeats_pose`; the batch form is
     :func:`kfusion.recording.held_frames`)."""
 
-    positions: deque[NDArray[np.float64]] = field(
-        default_factory=lambda: deque(maxlen=RECENT_POSITIONS))
+    poses: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = field(
+        default_factory=lambda: deque(maxlen=RECENT_POSES))
 
-    def held(self, position: NDArray[np.float64]) -> bool:
-        """Whether a visible frame's ``position`` (3,) m repeats a recent one; it is kept as
-        the newest either way."""
-        repeated = repeats_position(position, self.positions)
-        self.positions.append(np.array(position, dtype=float))
-        return repeated
+    def repeats(self, position: NDArray[np.float64], quaternion: NDArray[np.float64]) -> bool:
+        """Whether a visible frame's pose (``position`` (3,) m, ``quaternion`` (4,), NaN:
+        none) repeats a recent one (:func:`repeats_pose`)."""
+        return repeats_pose(position, quaternion, self.poses)
+
+    def add(self, position: NDArray[np.float64], quaternion: NDArray[np.float64]) -> None:
+        """Keep a visible frame's pose as the newest (a held one too)."""
+        self.poses.append((np.array(position, dtype=float), np.array(quaternion, dtype=float)))
 
 
 # ---------------------------------------------------------------------------------------------

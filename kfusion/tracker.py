@@ -167,7 +167,7 @@ from kfusion.streamhealth import (
     IMPLAUSIBLE,
     REBASE,
     ImuWatch,
-    RecentPositions,
+    RecentPoses,
     TimeGuard,
     dead_reckoning_until,
     hold_horizon,
@@ -312,10 +312,10 @@ class Health:
         resets: calls to :meth:`Tracker.reset`.
         orientation_gated: mocap orientations rejected by the gate against the gyroscope (the
             fix's position was still used; Kalman only).
-        held_poses: frames whose position repeated bit for bit one of the latest visible
+        held_poses: frames whose pose repeated bit for bit one of the latest visible
             frames': a pose held through an occlusion (or a still body in a noise-free
             stream), not a measurement, read as occluded (counted in ``mocap_occluded`` too;
-            :func:`kfusion.streamhealth.repeats_position`).
+            :func:`kfusion.streamhealth.repeats_pose`).
         time_rebases: times consistent samples showed the clock really jumped (or the newest
             time was itself a glitch) and the streams restarted from the new time
             (:class:`kfusion.streamhealth.TimeGuard`).
@@ -932,9 +932,9 @@ class _Stream:
     cadence_t: float = -math.inf
     interval: float = math.inf
     waiting: tuple[tuple, tuple[ArrayLike, ArrayLike]] | None = None
-    # mocap only: the latest visible positions (kept by a reset: a repeat is no measurement
+    # mocap only: the latest visible poses (kept by a reset: a repeat is no measurement
     # whatever the estimator) and the frames that repeated one of them (read as occluded)
-    recent: RecentPositions = field(default_factory=RecentPositions)
+    recent: RecentPoses = field(default_factory=RecentPoses)
     held_poses: int = 0
 
 
@@ -1281,10 +1281,13 @@ class Tracker:
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (point, rotation))
         pushed = (point, rotation)
-        held = not math.isnan(float(point[0])) and stream.recent.held(point)
-        if held:  # a recent frame's position again: not a measurement, an occluded frame
+        visible = not math.isnan(float(point[0]))
+        held = visible and stream.recent.repeats(point, rotation)
+        if held:  # a recent frame's pose again: not a measurement, an occluded frame
             point, rotation = nan_position, np.full(4, np.nan)
         outcome = self._admit_frame((t, MOCAP_STREAM, point, rotation, False, t), pushed)
+        if visible and outcome.reason != TOO_LATE:
+            stream.recent.add(*pushed)
         if held and outcome.reason == OCCLUDED:
             stream.held_poses += 1
         return outcome

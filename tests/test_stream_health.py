@@ -563,12 +563,13 @@ def test_held_poses_in_the_tracker_give_the_bits_of_the_occluded_stream():
 
 
 def test_held_frames_by_hand_and_against_the_streaming_rule():
-    """A visible frame whose position repeats one of the 10 visible frames before it bit for
-    bit is held: the last value repeated, a client alternating two values or a held value
-    with NaN frames, the position held while the quaternion comes fresh. The batch form
-    equals the Tracker's RecentPositions frame by frame on a random stream of such faults."""
+    """A visible frame whose pose repeats that of one of the 10 visible frames before it bit
+    for bit is held: the last value repeated, a client alternating two values or a held value
+    with NaN frames; the same position with another quaternion (a noise-free body turning
+    about its origin) is not. The batch form equals the Tracker's RecentPoses frame by frame
+    on a random stream of such faults."""
     from kfusion.recording import MocapFrames, held_frames
-    from kfusion.streamhealth import RECENT_POSITIONS, RecentPositions
+    from kfusion.streamhealth import RECENT_POSES, RecentPoses
 
     a, b, c = [0.0, 0.0, 1.0], [0.1, 0.0, 1.0], [0.2, 0.0, 1.0]
     nan3, identity, turned = [np.nan] * 3, [1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]
@@ -577,18 +578,22 @@ def test_held_frames_by_hand_and_against_the_streaming_rule():
     mocap = MocapFrames(t=np.arange(len(rows)) * 0.01,
                         position=np.array([row[0] for row in rows], dtype=float),
                         quaternion=np.array([row[1] for row in rows], dtype=float))
-    assert held_frames(mocap).tolist() == [False, True, False, True, True, False, True, False]
+    assert held_frames(mocap).tolist() == [False, True, False, True, False, False, True, False]
     rng = np.random.default_rng(3)
-    values = rng.standard_normal((6, 3))
-    position = values[rng.integers(0, 6, 400)]  # cycles, repeats and returns
-    position[rng.random(400) < 0.2] = np.nan
-    position[::37] = rng.standard_normal((len(position[::37]), 3))
-    random = MocapFrames(t=np.arange(400) * 0.01, position=position,
-                         quaternion=np.tile(identity, (400, 1)))
-    recent = RecentPositions()
-    streamed = [bool(np.isfinite(row).all()) and recent.held(row) for row in position]
+    poses = rng.standard_normal((6, 7))
+    pose = poses[rng.integers(0, 6, 400)]  # cycles, repeats and returns
+    pose[rng.random(400) < 0.2, :3] = np.nan
+    pose[::37] = rng.standard_normal((len(pose[::37]), 7))
+    random = MocapFrames(t=np.arange(400) * 0.01, position=pose[:, :3], quaternion=pose[:, 3:])
+    recent = RecentPoses()
+    streamed = []
+    for row in pose:
+        visible = bool(np.isfinite(row).all())
+        streamed.append(visible and recent.repeats(row[:3], row[3:]))
+        if visible:
+            recent.add(row[:3], row[3:])
     assert held_frames(random).tolist() == streamed
-    assert RECENT_POSITIONS == 10
+    assert RECENT_POSES == 10
 
 
 def test_a_pose_held_across_a_tracker_reset_is_still_held():
@@ -627,8 +632,8 @@ def test_a_still_noise_free_stream_is_dead_reckoned_then_lost():
     assert tracker.push_mocap(2.0, [0.3, 0.1, 1.2 + 1e-5], [1.0, 0.0, 0.0, 0.0]).accepted
 
 
-def test_check_names_a_stream_of_repeated_positions():
-    """A stream whose frames mostly repeat a recent position (a client holding the last
+def test_check_names_a_stream_of_repeated_poses():
+    """A stream whose frames mostly repeat a recent pose (a client holding the last
     value, a noise-free still body) is refused by the diagnosis with that reason, not with a
     misleading "no time overlap"; a few repeats are a note."""
     import dataclasses as dc
@@ -636,10 +641,11 @@ def test_check_names_a_stream_of_repeated_positions():
     from kfusion.calibration.diagnosis import diagnose
 
     recording, held = held_recording(seed=2, duration=8.0)
-    assert any("repeat a recent frame's position" in note for note in diagnose(held).notes)
+    assert any("repeat a recent frame's pose" in note for note in diagnose(held).notes)
     mocap = recording.mocap
-    frozen = recording.with_mocap(dc.replace(mocap, position=np.tile(mocap.position[0],
-                                                                     (len(mocap), 1))))
+    frozen = recording.with_mocap(dc.replace(
+        mocap, position=np.tile(mocap.position[0], (len(mocap), 1)),
+        quaternion=np.tile(mocap.quaternion[0], (len(mocap), 1))))
     problems = diagnose(frozen).problems
     assert len(problems) == 1 and problems[0].startswith("mocap: ") and \
-        "repeat a recent frame's position bit for bit" in problems[0]
+        "repeat a recent frame's pose bit for bit" in problems[0]

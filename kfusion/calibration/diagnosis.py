@@ -359,7 +359,7 @@ def diagnose(recording: Recording, *, imu_latency_s: float = 0.0) -> Diagnosis:
     visible = int(recording.mocap.visible.sum())
     recording, held = without_held_frames(recording)
     if held:
-        text = (f"{held} of {visible} visible mocap frames repeat a recent frame's position "
+        text = (f"{held} of {visible} visible mocap frames repeat a recent frame's pose "
                 "bit for bit (a client holding the last value through occlusions, or a "
                 "noise-free stream): read as occluded")
         if 2 * held > visible:
