@@ -59,6 +59,8 @@ accelerometer at its range limit       accepted, flagged ``saturated``; the Kalm
                                        velocity uncertainty rather than bias (the bias update is
                                        not frozen outright)
 mocap position None / NaN              occluded: no update, bridging
+mocap pose repeated bit for bit (one   not a measurement (a client holding the last value):
+of the 10 latest visible frames')      occluded, counted ``held_poses`` (kept across reset)
 mocap position inf                     rejected ``non_finite``
 mocap quaternion None / NaN            kalman: position-only update (orientation from the
                                        gyroscope); baseline: occluded
