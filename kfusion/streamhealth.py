@@ -241,11 +241,23 @@ RECENT_POSES: Final = 10
 alternating a held value with NaN frames, repeats one of them."""
 
 
-def repeats_pose(position: NDArray[np.float64], quaternion: NDArray[np.float64],
-                 recent: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]]) -> bool:
-    """True when a frame's ``position`` (3,) m and ``quaternion`` (4,) (NaN: none) equal one
-    of the ``recent`` poses (those of the latest visible frames, :class:`RecentPoses`) bit
-    for bit, a missing quaternion matching a missing one.
+Pose = tuple[float, ...]
+"""A frame's pose as a key compared bit for bit: ``(x, y, z, w, qx, qy, qz)``, or ``(x, y, z)``
+without a quaternion (:func:`pose_key`)."""
+
+
+def pose_key(position: NDArray[np.float64], quaternion: NDArray[np.float64]) -> Pose:
+    """The :data:`Pose` of a frame: ``position`` (3,) m and ``quaternion`` (4,) (any NaN:
+    none) as Python floats, so that two keys are equal exactly when the frames repeat."""
+    values = [float(value) for value in position]
+    rotation = [float(value) for value in quaternion]
+    return tuple(values if any(math.isnan(value) for value in rotation) else values + rotation)
+
+
+def repeats_pose(pose: Pose, recent: Sequence[Pose]) -> bool:
+    """True when a frame's ``pose`` (:func:`pose_key`) equals one of the ``recent`` poses
+    (those of the latest visible frames, :class:`RecentPoses`) bit for bit, a missing
+    quaternion matching a missing one.
 
     Such a frame is not a measurement. A sensor with noise never gives the same pose twice:
     the repeat is a pose held through an occlusion (a streaming client repeating the last
@@ -261,9 +273,7 @@ def repeats_pose(position: NDArray[np.float64], quaternion: NDArray[np.float64],
     after ``max_bridge_s``. The position alone is not enough: a noise-free body turning about
     its origin keeps its position (so a client holding the position while the quaternion
     comes fresh is not caught)."""
-    return any(np.array_equal(position, earlier) and
-               np.array_equal(quaternion, earlier_quaternion, equal_nan=True)
-               for earlier, earlier_quaternion in recent)
+    return pose in recent
 
 
 @dataclass
@@ -272,17 +282,15 @@ class RecentPoses:
     included, in time order (:func:`repeats_pose`; the batch form is
     :func:`kfusion.recording.held_frames`)."""
 
-    poses: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = field(
-        default_factory=lambda: deque(maxlen=RECENT_POSES))
+    poses: deque[Pose] = field(default_factory=lambda: deque(maxlen=RECENT_POSES))
 
-    def repeats(self, position: NDArray[np.float64], quaternion: NDArray[np.float64]) -> bool:
-        """Whether a visible frame's pose (``position`` (3,) m, ``quaternion`` (4,), NaN:
-        none) repeats a recent one (:func:`repeats_pose`)."""
-        return repeats_pose(position, quaternion, self.poses)
+    def repeats(self, pose: Pose) -> bool:
+        """Whether a visible frame's ``pose`` (:func:`pose_key`) repeats a recent one."""
+        return repeats_pose(pose, self.poses)
 
-    def add(self, position: NDArray[np.float64], quaternion: NDArray[np.float64]) -> None:
-        """Keep a visible frame's pose as the newest (a held one too)."""
-        self.poses.append((np.array(position, dtype=float), np.array(quaternion, dtype=float)))
+    def add(self, pose: Pose) -> None:
+        """Keep a visible frame's ``pose`` as the newest (a held one too)."""
+        self.poses.append(pose)
 
 
 # ---------------------------------------------------------------------------------------------

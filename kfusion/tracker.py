@@ -173,6 +173,7 @@ from kfusion.streamhealth import (
     TimeGuard,
     dead_reckoning_until,
     hold_horizon,
+    pose_key,
     status_durations,
     tracking_status,
 )
@@ -1283,13 +1284,13 @@ class Tracker:
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (point, rotation))
         pushed = (point, rotation)
-        visible = not math.isnan(float(point[0]))
-        held = visible and stream.recent.repeats(point, rotation)
+        pose = None if math.isnan(float(point[0])) else pose_key(point, rotation)
+        held = pose is not None and stream.recent.repeats(pose)
         if held:  # a recent frame's pose again: not a measurement, an occluded frame
             point, rotation = nan_position, np.full(4, np.nan)
         outcome = self._admit_frame((t, MOCAP_STREAM, point, rotation, False, t), pushed)
-        if visible and outcome.reason != TOO_LATE:
-            stream.recent.add(*pushed)
+        if pose is not None and outcome.reason != TOO_LATE:
+            stream.recent.add(pose)
         if held and outcome.reason == OCCLUDED:
             stream.held_poses += 1
         return outcome

@@ -569,7 +569,7 @@ def test_held_frames_by_hand_and_against_the_streaming_rule():
     about its origin) is not. The batch form equals the Tracker's RecentPoses frame by frame
     on a random stream of such faults."""
     from kfusion.recording import MocapFrames, held_frames
-    from kfusion.streamhealth import RECENT_POSES, RecentPoses
+    from kfusion.streamhealth import RECENT_POSES, RecentPoses, pose_key
 
     a, b, c = [0.0, 0.0, 1.0], [0.1, 0.0, 1.0], [0.2, 0.0, 1.0]
     nan3, identity, turned = [np.nan] * 3, [1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]
@@ -589,11 +589,14 @@ def test_held_frames_by_hand_and_against_the_streaming_rule():
     streamed = []
     for row in pose:
         visible = bool(np.isfinite(row).all())
-        streamed.append(visible and recent.repeats(row[:3], row[3:]))
+        streamed.append(visible and recent.repeats(pose_key(row[:3], row[3:])))
         if visible:
-            recent.add(row[:3], row[3:])
+            recent.add(pose_key(row[:3], row[3:]))
     assert held_frames(random).tolist() == streamed
     assert RECENT_POSES == 10
+    # a missing quaternion is part of the key: it matches a missing one only
+    assert pose_key(np.array(a), np.full(4, np.nan)) == (0.0, 0.0, 1.0)
+    assert pose_key(np.array(a), np.array(identity)) == (0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0)
 
 
 def test_a_pose_held_across_a_tracker_reset_is_still_held():
