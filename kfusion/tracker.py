@@ -173,7 +173,6 @@ from kfusion.streamhealth import (
     TimeGuard,
     dead_reckoning_until,
     hold_horizon,
-    pose_key,
     status_durations,
     tracking_status,
 )
@@ -1284,7 +1283,8 @@ class Tracker:
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (point, rotation))
         pushed = (point, rotation)
-        pose = None if math.isnan(float(point[0])) else pose_key(point, rotation)
+        pose = None if math.isnan(values[0]) else tuple(  # pose_key from the lists above
+            values if any(map(math.isnan, components)) else values + components)
         held = pose is not None and stream.recent.repeats(pose)
         if held:  # a recent frame's pose again: not a measurement, an occluded frame
             point, rotation = nan_position, np.full(4, np.nan)

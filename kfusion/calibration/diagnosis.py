@@ -353,19 +353,29 @@ def fine_clock_problem(recording: Recording, start: float, notes: list[str]) -> 
 def diagnose(recording: Recording, *, imu_latency_s: float = 0.0) -> Diagnosis:
     """The consistency tests of the module docstring on ``recording`` (as described by its
     info), with the IMU's events ``imu_latency_s`` (s) earlier than its mapped stamps, as the
-    filter takes them (:func:`kfusion.kalman.events.imu_event_time`)."""
-    notes: list[str] = []
-    # a pose held through an occlusion is no measurement: its steps would be read as motion
+    filter takes them (:func:`kfusion.kalman.events.imu_event_time`).
+
+    Frames that repeat a recent frame's pose bit for bit are read as occluded first, as every
+    path reads them (:func:`kfusion.recording.held_frames`: their steps would be read as
+    motion); the diagnosis says so in a note, and after its first problem when it finds one
+    (with most frames held, what is left may not be enough)."""
     visible = int(recording.mocap.visible.sum())
     recording, held = without_held_frames(recording)
-    if held:
-        text = (f"{held} of {visible} visible mocap frames repeat a recent frame's pose "
-                "bit for bit (a client holding the last value through occlusions, or a "
-                "noise-free stream): read as occluded")
-        if 2 * held > visible:
-            return Diagnosis([f"mocap: {text}, too few are left; export occluded frames as "
-                              "empty (NaN), or give a noise-free stream its sensor's noise"])
-        notes.append(text)
+    diagnosis = _diagnose(recording, imu_latency_s)
+    if not held:
+        return diagnosis
+    text = (f"{held} of {visible} visible mocap frames repeat a recent frame's pose bit for "
+            "bit (a client holding the last value through occlusions, or a noise-free "
+            "stream) and were read as occluded")
+    problems = list(diagnosis.problems)
+    if problems:
+        problems[0] = f"{problems[0]} ({text}: export occluded frames as empty)"
+    return dataclasses.replace(diagnosis, problems=problems, notes=[text, *diagnosis.notes])
+
+
+def _diagnose(recording: Recording, imu_latency_s: float) -> Diagnosis:
+    """:func:`diagnose` on a recording without held frames."""
+    notes: list[str] = []
     markers = marker_problem(recording)
     if markers:
         return Diagnosis([markers])
