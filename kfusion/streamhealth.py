@@ -246,9 +246,11 @@ Pose = tuple[float, ...]
 without a quaternion (:func:`pose_key`)."""
 
 
-def pose_key(position: NDArray[np.float64], quaternion: NDArray[np.float64]) -> Pose:
+def pose_key(position: Sequence[float] | NDArray[np.float64],
+             quaternion: Sequence[float] | NDArray[np.float64]) -> Pose:
     """The :data:`Pose` of a frame: ``position`` (3,) m and ``quaternion`` (4,) (any NaN:
-    none) as Python floats, so that two keys are equal exactly when the frames repeat."""
+    none), arrays or lists, as Python floats, so that two keys are equal exactly when the
+    frames repeat."""
     values = [float(value) for value in position]
     rotation = [float(value) for value in quaternion]
     return tuple(values if any(math.isnan(value) for value in rotation) else values + rotation)

@@ -173,6 +173,7 @@ from kfusion.streamhealth import (
     TimeGuard,
     dead_reckoning_until,
     hold_horizon,
+    pose_key,
     status_durations,
     tracking_status,
 )
@@ -619,7 +620,6 @@ class _Estimator(Protocol):
     def dead_reckoning_until(self) -> float: ...
 
     def orientation_gated(self) -> int: ...
-
 
     def snapshot(self) -> object:
         """The whole state, taken at mocap rate for the Tracker's checkpoints: keep it cheap."""
@@ -1283,8 +1283,7 @@ class Tracker:
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (point, rotation))
         pushed = (point, rotation)
-        pose = None if math.isnan(values[0]) else tuple(  # pose_key from the lists above
-            values if any(map(math.isnan, components)) else values + components)
+        pose = None if math.isnan(values[0]) else pose_key(values, components)
         held = pose is not None and stream.recent.repeats(pose)
         if held:  # a recent frame's pose again: not a measurement, an occluded frame
             point, rotation = nan_position, np.full(4, np.nan)
@@ -1365,9 +1364,7 @@ class Tracker:
         waiting = stream.waiting
         if waiting is not None:
             if t == waiting[0][0]:  # the waiting frame again: skipped, or both rejected
-                same = all(np.array_equal(new, old, equal_nan=True)
-                           for new, old in zip(values, waiting[1], strict=True))
-                if same:
+                if _same_values(values, waiting[1]):
                     return self._reject(stream, DUPLICATE)
                 stream.waiting = None
                 stream.rejected[IMPLAUSIBLE_TIME] += 1
@@ -1690,9 +1687,8 @@ class Tracker:
         """The rejection of a time not after the stream's last one (``t <= stream.last_t``)."""
         if t < stream.last_t or stream.last_values is None:
             return self._reject(stream, OUT_OF_ORDER)
-        same = all(np.array_equal(new, old, equal_nan=True)
-                   for new, old in zip(values, stream.last_values, strict=True))
-        return self._reject(stream, DUPLICATE if same else CONFLICTING_DUPLICATE)
+        return self._reject(stream, DUPLICATE if _same_values(values, stream.last_values)
+                            else CONFLICTING_DUPLICATE)
 
     def _fuse(self, event: tuple) -> str | None:
         """Fuse a validated event in time order; its outcome, or None if too late to insert.
@@ -2018,6 +2014,12 @@ def _parameters(method: str, params: Any, profile: ImuProfile) -> Any:
 def _event_key(event: tuple) -> tuple[float, int]:
     """An event's (t, stream): its place in the fusion order."""
     return event[0], event[1]
+
+
+def _same_values(new: tuple[ArrayLike, ...], old: tuple[ArrayLike, ...]) -> bool:
+    """Two pushes' values (the same shapes) equal element for element, NaN matching NaN: an
+    identical duplicate."""
+    return all(np.array_equal(a, b, equal_nan=True) for a, b in zip(new, old, strict=True))
 
 
 def _finite_reading(reading: _Reading, has_covariance: bool) -> bool:
