@@ -265,10 +265,18 @@ def test_a_fix_ending_a_gap_keeps_its_prediction_as_a_rival_by_hand():
     expected = np.diag([0.003 ** 2, 0.0, 0.0]) + 5 * r * np.eye(3)
     np.testing.assert_allclose(monitor.cover_rivals(t, np.zeros(3), zeros), expected,
                                rtol=1e-12)
-    # for reacquisition_rival_s, its end included, then no more; not counted as a step
-    np.testing.assert_allclose(monitor.cover_rivals(t + life, np.zeros(3), zeros), expected,
-                               rtol=1e-12)
-    assert not monitor.has_rivals(t + life + 1e-6)
+    # for reacquisition_rival_s, its end included, then no more; not counted as a step. The
+    # fix ending the gap has an NIS of 20 (beyond the edge test's 17.7 for one gap end): from
+    # then on the bound also holds an offset on the fixes before a gap (its own tests:
+    # test_edge_offsets), h s after the last fix
+    def edge(at):
+        return monitor.edge_offset_variance(at) * np.eye(3)
+
+    assert edge(t + life)[0, 0] > 0
+    np.testing.assert_allclose(monitor.cover_rivals(t + life, np.zeros(3), zeros),
+                               expected + edge(t + life), rtol=1e-12)
+    np.testing.assert_allclose(monitor.cover_rivals(t + life + 1e-6, np.zeros(3), zeros),
+                               edge(t + life + 1e-6), rtol=1e-12)
     assert monitor.report().steps == 0
     # a fix ending a gap with an NIS beyond the step quantile is a step: its rival lasts
     # max_bridge_s, and it is counted
@@ -276,8 +284,8 @@ def test_a_fix_ending_a_gap_keeps_its_prediction_as_a_rival_by_hand():
     t += 0.3
     monitor.mocap(t, np.zeros(3), UpdateOutcome(t, ACCEPTED, 80.0),
                   _Posterior(fusion, np.zeros(3), r / 2 * np.eye(3)), prior)
-    np.testing.assert_allclose(monitor.cover_rivals(t + limit, np.zeros(3), zeros), expected,
-                               rtol=1e-12)
+    np.testing.assert_allclose(monitor.cover_rivals(t + limit, np.zeros(3), zeros),
+                               expected + edge(t + limit), rtol=1e-12)
     assert monitor.report().steps == 1
     # turned off: neither prior nor rival
     off, fusion_off, _ = _monitor_with_fixes()
@@ -311,7 +319,9 @@ def test_a_short_rival_does_not_end_a_longer_smaller_step():
                   _Posterior(fusion, np.zeros(3), r / 2 * np.eye(3)), prior)
     larger = np.diag([0.0, 0.005 ** 2, 0.0]) + 2 * r * np.eye(3)
     np.testing.assert_allclose(monitor.cover_rivals(t, np.zeros(3), zeros), larger, rtol=1e-12)
-    np.testing.assert_allclose(monitor.cover_rivals(t + 0.25, np.zeros(3), zeros), step,
+    # (the gap's end, 5 mm off, also starts the edge term: test_edge_offsets)
+    edge = monitor.edge_offset_variance(t + 0.25) * np.eye(3)
+    np.testing.assert_allclose(monitor.cover_rivals(t + 0.25, np.zeros(3), zeros), step + edge,
                                rtol=1e-12)
 
 

@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kfusion.conventions import BRIDGED, TRACKED
+from kfusion.conventions import BRIDGED, LOST, TRACKED
 from kfusion.kalman.batch import (
     BODY,
     MARKERS,
@@ -81,10 +81,20 @@ from kfusion.monitor import (
     MonitorReport,
     bridging_allowed,
     chi2_quantile,
+    edge_frames,
+    edge_sensitivity,
+    edge_variance_needed,
+    fixes_before_gaps,
+    nis_interval,
     nis_matching_scale,
+    normalised_error_squared,
+    quantile_matching_scale,
     required_scale,
+    smoothed_edge_sensitivity,
 )
 from kfusion.recording import (
+    MarkerFrames,
+    MocapFrames,
     Recording,
     occlusion_durations,
     occlusion_runs,
@@ -342,6 +352,88 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     return scales
 
 
+def edge_rows(t: NDArray[np.float64], fixed: NDArray[np.bool_], monitor: MonitorParameters
+              ) -> NDArray[np.bool_]:
+    """(m,) True at the last fixes before each gap that fall within ``monitor.edge_s``
+    (:func:`kfusion.monitor.edge_frames` of them at the fixes' period;
+    :func:`kfusion.monitor.fixes_before_gaps`, gaps of at least ``settle_after_s``)."""
+    before, period = fixes_before_gaps(t, fixed, monitor.settle_after_s)
+    if not period > 0:
+        return np.zeros(len(t), dtype=bool)
+    return (before >= 0) & (before < edge_frames(monitor.edge_s, period))
+
+
+def edge_holdout(recording: Recording, params: KalmanParameters, monitor: MonitorParameters,
+                 measurement: str = BODY, engine: str = DEFAULT_ENGINE) -> float:
+    """Per-axis variance (m^2) of an offset on the fixes just before the recording's gaps (a
+    marker cluster partly occluded as the occlusion begins shifts the solved body), tested
+    offline: those fixes (:func:`edge_rows`) are hidden, the copy is smoothed without the
+    monitor, and each hidden fix z is compared with the smoothed point there, ``r = z -
+    p_s``, against ``S = P_s + R``. When the mean of ``r^T S^-1 r`` is within the windowed
+    NIS test's upper limit (:func:`kfusion.monitor.nis_interval` at ``nis_probability``) the
+    fixes before the gaps agree with the motion around them: 0. Else the
+    ``matching_quantile`` of the variance each needed (:func:`kfusion.monitor.
+    edge_variance_needed` with shape 1: the offset adds to the fix). 0 too without gaps."""
+    mocap = recording.mocap
+    fixed = mocap.visible
+    hidden_rows = edge_rows(mocap.t, fixed, monitor)
+    if not hidden_rows.any():
+        return 0.0
+    position = np.where(hidden_rows[:, None], np.nan, mocap.position)
+    quaternion = np.where(hidden_rows[:, None], np.nan, mocap.quaternion)
+    hidden = recording.with_mocap(MocapFrames(t=mocap.t, position=position,
+                                              quaternion=quaternion))
+    if recording.markers is not None and np.array_equal(recording.markers.t, mocap.t):
+        hidden = dataclasses.replace(hidden, markers=MarkerFrames(
+            t=recording.markers.t, names=recording.markers.names,
+            position=np.where(hidden_rows[:, None, None], np.nan,
+                              recording.markers.position)))
+    run = run_smoother(hidden, params, monitor=None, measurement=measurement, engine=engine)
+    assert run.output_matrix is not None
+    rows = np.flatnonzero(hidden_rows & (run.result.status != LOST))
+    if len(rows) == 0:
+        return 0.0
+    noise = fix_noise_variance(params, run.nis, run.outcome)
+    covariance = position_covariances(run.P[rows], run.output_matrix[rows]) \
+        + noise * np.eye(3)
+    residual = mocap.position[rows] - run.result.position[rows]
+    nis = [normalised_error_squared(residual[k], covariance[k]) for k in range(len(rows))]
+    if math.fsum(nis) / len(nis) <= nis_interval(len(nis), monitor.nis_probability)[1]:
+        return 0.0
+    needed = [edge_variance_needed(residual[k], covariance[k], 1.0, monitor.confidence)
+              for k in range(len(rows))]
+    return quantile_matching_scale(needed, monitor.matching_quantile)
+
+
+def smoothed_edge_shape(t: NDArray[np.float64], fixed: NDArray[np.bool_],
+                        time_since_fix_s: NDArray[np.float64], params: KalmanParameters,
+                        monitor: MonitorParameters) -> NDArray[np.float64]:
+    """(m,) factor of the edge offset's variance (:func:`edge_holdout`) in each smoothed row
+    (times ``t`` (m,) s, ``fixed`` (m,) bool, ``time_since_fix_s`` (m,) s): at a fix j fixes
+    before a gap, the square of the smoothed rows' sensitivity to an offset on the last fixes
+    before it (:func:`kfusion.monitor.smoothed_edge_sensitivity`); in a gap h s after such a
+    fix, the forward filter's ``(a + b h)^2`` (:func:`kfusion.monitor.edge_sensitivity`: the
+    smoothed row leans on it from the gap's near side, and on clean fixes from the far side,
+    so its error is at most that); 0 elsewhere."""
+    before, period = fixes_before_gaps(t, fixed, monitor.settle_after_s)
+    shape = np.zeros(len(t))
+    if not period > 0:
+        return shape
+    reach = np.asarray(smoothed_edge_sensitivity(
+        params.accelerometer_noise_density, params.mocap_position_noise, period,
+        edge_frames(monitor.edge_s, period)))
+    near = (before >= 0) & (before < len(reach))
+    shape[near] = reach[before[near]] ** 2
+    # in a gap: rows without a fix after a fix that ends a run before a gap (before == 0)
+    last_fix = np.maximum.accumulate(np.where(fixed, np.arange(len(t)), -1))
+    in_gap = ~fixed & (last_fix >= 0) & np.isfinite(time_since_fix_s)
+    in_gap[in_gap] = before[last_fix[in_gap]] == 0
+    a, b = edge_sensitivity(params.accelerometer_noise_density, params.mocap_position_noise,
+                            period, edge_frames(monitor.edge_s, period))
+    shape[in_gap] = (a + b * time_since_fix_s[in_gap]) ** 2
+    return shape
+
+
 def compiled_steps(recording: Recording, params: KalmanParameters,
                    watcher: ConsistencyMonitor | None, *, stepwise: bool = False
                    ) -> tuple[_RowRecorder, Replay] | None:
@@ -500,6 +592,12 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         # on the same fix and model: it is not presented as surer than that
         variance = np.where(np.isfinite(recorder.at_fix_variance),
                             np.maximum(variance, recorder.at_fix_variance), variance)
+    edge_variance = 0.0 if monitor is None else edge_holdout(recording, params, monitor,
+                                                             measurement=measurement,
+                                                             engine=engine)
+    if edge_variance > 0:
+        shape = smoothed_edge_shape(t, fixed, since, params, monitor)  # type: ignore[arg-type]
+        variance = variance + edge_variance * shape[:, None]
     holdout = None if monitor is None else holdout_scales(recording, params, monitor,
                                                           measurement=measurement,
                                                           engine=engine)

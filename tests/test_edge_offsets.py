@@ -1,0 +1,184 @@
+"""Offsets on the fixes before an occlusion (kfusion.monitor: edge_sensitivity, the gap-end
+edge test in ConsistencyMonitor.cover_rivals; kfusion.kalman.smoother.edge_holdout).
+
+The pure functions are checked against filterpy and by hand; the rules on a simulated
+recording whose body is solved off on the frames before each occlusion
+(kfusion.simulate.faults.occlusion_edge_drift / occlusion_edge_offsets), where the code
+before these rules put 10.4 % of the Tracker's rows and 9.6 % of the smoother's beyond the
+99 % bound (benchmarks/failsafe.py, 5 seeds of 30 s), and on clean data, where they must
+change nothing."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from filterpy.kalman import KalmanFilter
+from test_batch_streaming import arrival_orders, stream_rows
+
+from kfusion.kalman import run_filter, run_smoother
+from kfusion.kalman.batch import resolve_parameters
+from kfusion.kalman.smoother import edge_holdout
+from kfusion.monitor import (
+    EDGES,
+    MonitorParameters,
+    chi2_quantile,
+    edge_frames,
+    edge_sensitivity,
+    edge_variance_needed,
+    fixes_before_gaps,
+    smoothed_edge_sensitivity,
+)
+from kfusion.recording import occlusion_runs
+from kfusion.simulate import OcclusionSpec, faults, simulate
+from kfusion.tracker import Tracker, position_bound
+
+DENSITY, NOISE, PERIOD = 0.003, 0.0003, 0.01  # m/s^2/sqrt(Hz), m, s
+
+
+def constant_velocity_filter() -> KalmanFilter:
+    """filterpy's 1-axis constant-velocity filter with the model of edge_sensitivity."""
+    kf = KalmanFilter(dim_x=2, dim_z=1)
+    kf.F = np.array([[1.0, PERIOD], [0.0, 1.0]])
+    kf.H = np.array([[1.0, 0.0]])
+    kf.R = np.array([[NOISE ** 2]])
+    kf.Q = DENSITY ** 2 * np.array([[PERIOD ** 3 / 3, PERIOD ** 2 / 2],
+                                    [PERIOD ** 2 / 2, PERIOD]])
+    kf.x = np.zeros(2)
+    kf.P = np.diag([NOISE ** 2, 1.0])
+    return kf
+
+
+def offsets(rows: int, frames: int) -> np.ndarray:
+    values = np.zeros(rows)
+    values[rows - frames:] = 1.0
+    return values
+
+
+@pytest.mark.parametrize("frames", [1, 3, 8])
+def test_edge_sensitivity_is_what_filterpy_carries_into_the_gap(frames):
+    """A linear filter fed zeros to its steady state and then 1 on the last n fixes holds the
+    sensitivity (a, b) of an offset on those fixes."""
+    kf = constant_velocity_filter()
+    for value in offsets(2000, frames):
+        kf.predict()
+        kf.update(np.array([value]))
+    a, b = edge_sensitivity(DENSITY, NOISE, PERIOD, frames)
+    assert kf.x[0] == pytest.approx(a, rel=1e-6)
+    assert kf.x[1] == pytest.approx(b, rel=1e-6)
+
+
+def test_smoothed_edge_sensitivity_is_filterpys_rts_on_the_offsets():
+    kf = constant_velocity_filter()
+    steady = offsets(2000, 0)
+    for value in steady:  # to the steady state first
+        kf.predict()
+        kf.update(np.array([value]))
+    measurements = offsets(60, 3)
+    means, covariances, _, _ = kf.batch_filter(measurements.reshape(-1, 1))
+    smoothed, _, _, _ = kf.rts_smoother(means, covariances)
+    expected = smoothed[::-1, 0]
+    np.testing.assert_allclose(smoothed_edge_sensitivity(DENSITY, NOISE, PERIOD, 3), expected,
+                               rtol=1e-6, atol=1e-12)
+
+
+def test_edge_variance_needed_by_hand():
+    limit = chi2_quantile(0.99, 3)
+    S = 2e-7 * np.eye(3)
+    error = np.array([0.003, 0.0, 0.0])
+    # isotropic S = s I: |e|^2 / (s + sigma^2 c) = L  =>  sigma^2 = (|e|^2 / L - s) / c
+    for shape in (1.0, 0.25, 4.0):
+        expected = (0.003 ** 2 / limit - 2e-7) / shape
+        assert edge_variance_needed(error, S, shape) == pytest.approx(expected, rel=1e-9)
+    assert edge_variance_needed(np.array([1e-4, 0.0, 0.0]), S, 1.0) == 0.0  # inside already
+    assert edge_variance_needed(np.array([np.nan, 0, 0]), S, 1.0) == math.inf
+    assert edge_variance_needed(error, S, 0.0) == math.inf
+
+
+def test_fixes_before_gaps_and_edge_frames_by_hand():
+    t = np.arange(12) * 0.01
+    fixed = np.array([1, 1, 1, 1, 0, 0, 0, 0, 0, 1, 1, 1], dtype=bool)
+    before, period = fixes_before_gaps(t, fixed, 0.05)
+    assert period == pytest.approx(0.01)
+    np.testing.assert_array_equal(before, [3, 2, 1, 0, -1, -1, -1, -1, -1, -1, -1, -1])
+    # a short dropout (under shortest_gap_s) is not a gap
+    fixed_short = np.array([1, 1, 1, 1, 0, 1, 1, 1, 1, 1, 1, 1], dtype=bool)
+    assert (fixes_before_gaps(t, fixed_short, 0.05)[0] == -1).all()
+    assert edge_frames(0.03, 0.01) == 3 and edge_frames(0.03, 1 / 240) == 7
+    assert edge_frames(0.03, 0.1) == 1
+
+
+def simulated(seed: int = 0, duration: float = 30.0):
+    return simulate("random_reach", seed=seed, imu="mpu9255", duration=duration,
+                    occlusions=OcclusionSpec(gap_range=(0.1, 0.5), spacing=1.5))
+
+
+def gap_rows_beyond_bound(result, truth, visible, first_gap: int) -> tuple[int, int]:
+    """(rows beyond the 99 % bound, rows) among the bridged rows of the gaps from the
+    ``first_gap``-th on."""
+    runs = occlusion_runs(visible)[first_gap:]
+    wrong = rows = 0
+    for start, stop in runs:
+        for row in range(start, stop):
+            if result.status[row] != "bridged":
+                continue
+            rows += 1
+            bound = position_bound(np.diag(result.std[row] ** 2), 0.99)
+            wrong += float(np.linalg.norm(result.position[row] - truth[row])) > bound
+    return wrong, rows
+
+
+def test_the_gaps_after_a_few_drifting_edges_are_covered():
+    """Before the rule, 47 % of the bridged rows after the eighth gap were beyond the bound on
+    this fault (3 seeds); the gap ends now show it and the bound holds the offset."""
+    simulation = simulated(seed=0)
+    recording = faults.occlusion_edge_drift(faults.Streams.of(simulation.recording)).recording
+    run = run_filter(recording)
+    wrong, rows = gap_rows_beyond_bound(run.result, simulation.truth.position,
+                                        simulation.recording.mocap.visible, first_gap=8)
+    assert rows > 150
+    assert wrong <= 0.02 * rows
+    assert run.monitor is not None and run.monitor.edge_offset_std_m > 0.0005
+    assert run.monitor.suspected_cause == EDGES
+
+
+def test_the_smoother_holds_the_edge_offsets_it_finds_by_hiding_them():
+    simulation = simulated(seed=1)
+    recording = faults.occlusion_edge_offsets(faults.Streams.of(simulation.recording)).recording
+    params = resolve_parameters(recording, None, {})
+    edge = edge_holdout(recording, params, MonitorParameters())
+    # an offset d needs sigma^2 of about |d|^2 / F^-1_chi2(3)(0.99) = (1.5 mm)^2 / 11.3 for the
+    # 99 % ellipsoid to reach it: sigma about 0.45 mm (plus the noise it rides on)
+    assert 0.0003 < math.sqrt(edge) < 0.0015
+    run = run_smoother(recording)
+    truth = simulation.truth.position
+    usable = run.result.status != "lost"
+    bounds = np.array([position_bound(np.diag(std ** 2), 0.99) for std in run.result.std[usable]])
+    errors = np.linalg.norm(run.result.position[usable] - truth[usable], axis=1)
+    assert np.mean(errors > bounds) <= 0.01  # 8.6 % before (5 seeds)
+
+
+def test_clean_data_has_no_edge_offset():
+    """On a clean recording the gap ends and the hidden edge fixes agree with the model: the
+    rules change nothing (the bounds equal those of a monitor that cannot see edges)."""
+    simulation = simulated(seed=2, duration=20.0)
+    recording = simulation.recording
+    params = resolve_parameters(recording, None, {})
+    assert edge_holdout(recording, params, MonitorParameters()) == 0.0
+    run = run_filter(recording)
+    assert run.monitor is not None and run.monitor.edge_offset_std_m == 0.0
+    assert run.monitor.suspected_cause != EDGES
+
+
+def test_the_tracker_and_the_batch_filter_give_the_same_edge_bounds():
+
+    simulation = simulated(seed=0, duration=20.0)
+    recording = faults.occlusion_edge_drift(faults.Streams.of(simulation.recording)).recording
+    params = resolve_parameters(recording, None, {})
+    run = run_filter(recording, params)
+    assert run.monitor is not None and run.monitor.edge_offset_std_m > 0
+    tracker = Tracker.from_recording_info(recording.info, params=params)
+    rows = stream_rows(recording, tracker, arrival_orders(recording, 0.0)["mocap_first"], 0.0)
+    np.testing.assert_array_equal(rows["position"], run.result.position)
+    np.testing.assert_array_equal(rows["std"], run.result.std)
