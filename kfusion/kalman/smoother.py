@@ -629,6 +629,10 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         widened = np.where(np.isfinite(recorder.at_fix_variance),
                            np.maximum(recorder.at_fix_variance, noise), noise)
         fix_variance = widened + recorder.rival_variance
+        if edge_variance > 0 and monitor is not None:
+            # a fix shown alone is the offset fix itself (edge_holdout)
+            fix_variance = fix_variance + np.where(edge_rows(t, fixed, monitor),
+                                                   edge_variance, 0.0)[:, None]
         status, position, variance = fix_only_rows(status, position, variance,
                                                    np.zeros(m, dtype=bool), fix_position,
                                                    fix_variance)
