@@ -100,9 +100,8 @@ windowed test high, the bound h s into a gap adds ``sigma^2 (a + b h)^2`` per ax
 their ``matching_quantile``, and their ``mean NIS / 3`` scales the gap's covariance. The
 first gaps are bridged before the test has their evidence (a shift the size of the mocap noise
 per frame does not show in the fixes' own NIS; a larger one is a step:
-:meth:`ConsistencyMonitor._step`). The
-smoother tests the same offline,
-by hiding the fixes before each gap (:func:`kfusion.kalman.smoother.edge_holdout`).
+:meth:`ConsistencyMonitor._step`). The smoother tests the same offline, by hiding the fixes
+before each gap (:func:`kfusion.kalman.smoother.edge_holdout`).
 """
 
 from __future__ import annotations
@@ -1267,33 +1266,33 @@ class ConsistencyMonitor:
         self._gap_end_nis.append(nis)
         self._gap_end_edge.append(needed)
         self._edge_value = None
+        self._forget_derived(nis=False)  # the scale table reads _gap_end_scale
 
-    def _gap_end_scale(self) -> float:
-        """The real gaps' matching factor: ``mean NIS / 3`` over the fixes that ended the last
-        ``gap_end_window`` gaps when that mean is beyond the windowed test's upper limit, else
-        0 (no constraint)."""
+    def _gap_ends_mean_nis(self) -> float:
+        """The mean NIS of the fixes that ended the last ``gap_end_window`` real gaps when it is
+        beyond the windowed test's upper limit at ``nis_probability`` (the gaps' predictions
+        were worse than their covariance said), else 0."""
         samples = len(self._gap_end_nis)
         if samples:
             mean = math.fsum(self._gap_end_nis) / samples
             if mean > nis_interval(samples, self.params.nis_probability)[1]:
-                return mean / 3
+                return mean
         return 0.0
+
+    def _gap_end_scale(self) -> float:
+        """The real gaps' matching factor ``mean NIS / 3`` when their test fails high
+        (:meth:`_gap_ends_mean_nis`), else 0 (no constraint)."""
+        return self._gap_ends_mean_nis() / 3
 
     def _edge_variance(self) -> float:
         """Variance (m^2 per axis) of an offset on the fixes before a gap that the bound in a
         gap allows for (:meth:`cover_rivals`): 0 while the fixes ending the last
-        ``gap_end_window`` real gaps agree with their predictions (the mean of their NIS within
-        the windowed test's upper limit at ``nis_probability``); else the ``matching_quantile``
-        of the variances they needed (:func:`edge_variance_needed`)."""
+        ``gap_end_window`` real gaps agree with their predictions (:meth:`_gap_ends_mean_nis`);
+        else the ``matching_quantile`` of the variances they needed
+        (:func:`edge_variance_needed`)."""
         if self._edge_value is None:
-            value = 0.0
-            samples = len(self._gap_end_nis)
-            if samples:
-                mean = math.fsum(self._gap_end_nis) / samples
-                if mean > nis_interval(samples, self.params.nis_probability)[1]:
-                    value = quantile_matching_scale(list(self._gap_end_edge),
-                                                    self.params.matching_quantile)
-            self._edge_value = value
+            self._edge_value = 0.0 if self._gap_ends_mean_nis() == 0.0 else \
+                quantile_matching_scale(list(self._gap_end_edge), self.params.matching_quantile)
         return self._edge_value
 
     def _mocap_noise_variance(self) -> float:
@@ -1453,6 +1452,9 @@ class ConsistencyMonitor:
           its NIS (:meth:`_reacquisition_rival`: d = x_prior - z, S = P_prior + R); of those
           still in time, the largest: P' = P + d d^T + S.
 
+        * after the last fused fix, an offset on the fixes before it, once the fixes ending
+          real gaps showed one (:meth:`edge_offset_variance`): P' = P + sigma^2 (a + b h)^2 I.
+
         The largest eigenvalue of P' is at least |d|^2, so the bound reaches past the rival.
         Unchanged when there is none."""
         params = self._shadow.params
@@ -1482,8 +1484,8 @@ class ConsistencyMonitor:
 
     def has_rivals(self, t: float) -> bool:
         """True when :meth:`cover_rivals` widens a covariance at t (s): a fix was gated since
-        the last fused one, or a fix fused after gated ones is younger than ``max_bridge_s``
-        (callers skip forming the point and covariance otherwise)."""
+        the last fused one, a fix fused after gated ones is younger than ``max_bridge_s``, or an
+        edge offset applies (callers skip forming the point and covariance otherwise)."""
         limit = self._shadow.params.max_bridge_s
         return self._gated_fix is not None or self.edge_offset_variance(t) > 0 or any(
             rival is not None and t - rival[0] <= limit

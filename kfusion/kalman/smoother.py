@@ -390,7 +390,8 @@ def edge_holdout(recording: Recording, params: KalmanParameters, monitor: Monito
                               recording.markers.position)))
     run = run_smoother(hidden, params, monitor=None, measurement=measurement, engine=engine)
     assert run.output_matrix is not None
-    rows = np.flatnonzero(hidden_rows & (run.result.status != LOST))
+    rows = np.flatnonzero(hidden_rows & (run.result.status != LOST)
+                          & np.isfinite(mocap.position).all(axis=1))
     if len(rows) == 0:
         return 0.0
     noise = fix_noise_variance(params, run.nis, run.outcome)
