@@ -96,8 +96,10 @@ filter takes part of the shift in (position ``a d``, velocity ``b d``:
 The shadow gaps start from clean fixes and cannot show it; the fixes that end real gaps can.
 Each gives the offset variance it needed (:func:`edge_variance_needed`, shape ``(a + b H)^2``
 at the gap's length H); while the mean NIS of the last ``gap_end_window`` of them fails the
-windowed test high, the bound h s into a gap adds ``sigma^2 (a + b h)^2`` per axis, sigma^2
-their ``matching_quantile``, and their ``mean NIS / 3`` scales the gap's covariance. The
+windowed test high (against the predictions as the shadow gaps scaled them: what those
+explain is no edge), and until it is back to 3, the bound h s into a gap adds ``sigma^2 (a + b
+h)^2`` per axis, sigma^2 their ``matching_quantile``, and their ``mean NIS / 3`` scales the
+gap's covariance. The
 first gaps are bridged before the test has their evidence (a shift the size of the mocap noise
 per frame does not show in the fixes' own NIS; a larger one is a step:
 :meth:`ConsistencyMonitor._step`). The smoother tests the same offline, by hiding the fixes
@@ -458,9 +460,9 @@ def fixes_before_gaps(t: ArrayLike, fixed: ArrayLike, shortest_gap_s: float
                       ) -> tuple[NDArray[np.int64], float]:
     """For each row with a fix (``fixed`` (m,) bool, times ``t`` (m,) s), how many fixes lie
     between it and the next gap (0: the last fix before it), -1 at rows without a fix and
-    after the last gap; a gap: the next fix comes at least ``shortest_gap_s`` s after the last
-    (:func:`reacquired_after_gap`). Also returns the fixes' period, s (the median spacing of
-    consecutive fixes; NaN with fewer than 2 fixes)."""
+    after the last gap; a gap: the next fix comes at least ``shortest_gap_s`` s (and 1.5
+    periods) after the last (:func:`reacquired_after_gap`). Also returns the fixes' period, s
+    (the median spacing of consecutive fixes; NaN with fewer than 2 fixes)."""
     times = np.asarray(t, dtype=float)
     used = np.asarray(fixed, dtype=bool)
     count = np.full(len(times), -1, dtype=np.int64)
@@ -468,11 +470,14 @@ def fixes_before_gaps(t: ArrayLike, fixed: ArrayLike, shortest_gap_s: float
     if len(rows) < 2:
         return count, math.nan
     spacing = np.diff(times[rows])
-    ends = np.flatnonzero(spacing >= shortest_gap_s)  # rows[end]: the last fix before a gap
+    period = float(np.median(spacing))
+    # rows[end]: the last fix before a gap (and a gap is more than a frame late: at 20 Hz every
+    # spacing is settle_after_s)
+    ends = np.flatnonzero(spacing >= max(shortest_gap_s, 1.5 * period))
     position = np.searchsorted(ends, np.arange(len(rows)), side="left")
     inside = position < len(ends)
     count[rows[inside]] = ends[position[inside]] - np.arange(len(rows))[inside]
-    return count, float(np.median(spacing))
+    return count, period
 
 
 def edge_variance_needed(error: ArrayLike, covariance: ArrayLike, shape: float,
@@ -801,16 +806,18 @@ class MonitorParameters:
             above which gravity is suspected.
         motion_error_acceleration: RMS acceleration error (m/s^2) above which the IMU is said to
             disagree with the mocap motion.
-        gap_end_window: real gaps whose ending fix the edge test reads
-            (:meth:`ConsistencyMonitor.cover_rivals`): when the mean NIS of those fixes
-            against their predictions is beyond the windowed test's upper limit, the gaps
-            start from fixes that were off, and the bound in a gap holds an offset on the
-            fixes before it as large as the largest of them needed (and their ``mean NIS /
-            3`` scales the gap's covariance). Measured with the body drifting 1.5 mm off over
-            the 5 frames before each occlusion (5 seeds of 30 s): 10.4 % of the Tracker's rows
-            beyond the 99 % bound before, 3.5 % after, all in the gaps before the test has
-            enough of them (it fires after 2-7 gaps); the rows after the eighth gap of
-            3 seeds: 47 % beyond before, none after.
+        gap_end_window: real gaps (at most ``max_bridge_s``, ended by an accepted fix) whose
+            ending fix the edge test reads (:meth:`ConsistencyMonitor.cover_rivals`): when
+            the mean NIS of those fixes against their predictions, as the shadow gaps and the
+            NIS window had scaled them, is beyond the windowed test's upper limit, the gaps
+            start from fixes that were off, and until that mean is back to 3 the bound in a
+            gap holds an offset on the fixes before it as large as the largest of them needed
+            (and their ``mean NIS / 3`` scales the gap's covariance). Measured with the body
+            drifting 1.5 mm off over the 5 frames before each occlusion (5 seeds of 30 s):
+            10.4 % of the Tracker's rows beyond the 99 % bound before, 3.4 % after, all in
+            the gaps before the test has enough of them (it fires after 2-7 gaps when the
+            offsets start with the recording, later when clean gaps came first); the rows
+            after the eighth gap of 3 seeds: 47 % beyond before, none after.
         edge_s: how long before an occlusion the fixes may be off (s; ``edge_frames`` of
             them at the fixes' rate, 3 at 100 Hz): on BROAD's real occlusions the frames
             within about 10 ms of one deviate from the motion 1.3-2.3x more than the others,
@@ -1016,6 +1023,7 @@ class ConsistencyMonitor:
         self._gap_end_nis: deque[float] = deque(maxlen=self.params.gap_end_window)
         self._gap_end_edge: deque[float] = deque(maxlen=self.params.gap_end_window)
         self._edge_value: float | None = None  # _edge_variance(), None: not computed
+        self._edge_on = False  # the gap ends' test failed high, not yet back to 3 (_gap_end)
         self._fix_period = math.inf  # s between the last two fixes in a run (not a gap)
         # values derived from _nis and _scales, kept until those change (in mocap(), at a fused
         # fix and when a shadow gap closes) or a restore replaces them with the snapshot's own
@@ -1111,7 +1119,7 @@ class ConsistencyMonitor:
                     outcome.nis > chi2_quantile(self.params.confidence, 3):
                 self._settle(t, outcome.nis / 3.0)  # a gap's prediction was wrong
             if reacquired_after_gap(self._fix_horizon, self.params.settle_after_s):
-                if outcome.kind in (ACCEPTED, REACQUIRED) and prior is not None:
+                if outcome.kind == ACCEPTED and prior is not None:
                     self._gap_end(position, prior)
             elif math.isfinite(self._fix_horizon):
                 self._fix_period = self._fix_horizon
@@ -1242,42 +1250,56 @@ class ConsistencyMonitor:
     def _edge_shape(self, horizon_s: float) -> float:
         """``(a + b h)^2`` at ``horizon_s`` s into a gap (:func:`edge_sensitivity` for the
         fixes' period before it); 0 before two fixes in a run."""
-        if not math.isfinite(self._fix_period) or self._fix_period <= 0:
+        # to 0.1 ms, so that jittered frame times share edge_sensitivity's cached solutions
+        period = round(self._fix_period, 4)
+        if not math.isfinite(period) or period <= 0:
             return 0.0
         shadow = self._shadow.params
         a, b = edge_sensitivity(shadow.accelerometer_noise_density,
-                                shadow.mocap_position_noise, self._fix_period,
-                                edge_frames(self.params.edge_s, self._fix_period))
+                                shadow.mocap_position_noise, period,
+                                edge_frames(self.params.edge_s, period))
         return (a + b * horizon_s) ** 2
 
     def _gap_end(self, position: NDArray[np.float64], prior: FilterEstimate) -> None:
-        """Keep the evidence of a fix ending a real gap of ``_fix_horizon`` s: its NIS against
-        the prediction ``prior`` (``y^T S^-1 y``, S = P- + R) and the edge offset variance it
-        needed (:func:`edge_variance_needed`)."""
+        """Keep the evidence of an accepted fix ending a real gap of ``_fix_horizon`` s (at most
+        ``max_bridge_s``: a longer gap was not bridged) against the prediction ``prior``, with
+        the prediction's covariance as the bound had it before this evidence: ``S = s P- + R``,
+        s the shadow gaps' and the NIS window's scale at that horizon (what they already
+        explain is not an edge offset). Keeps its NIS ``y^T S^-1 y`` and the edge offset
+        variance it needed (:func:`edge_variance_needed`), and switches the edge term on when
+        the mean NIS of the window fails the windowed test high, off when it falls back to its
+        expectation (3) or below. Nothing is kept before the fixes' period is known (two fixes
+        in a run): the offset's shape is not known then."""
+        shape = self._edge_shape(self._fix_horizon)
+        if shape <= 0 or not self._fix_horizon <= self._shadow.params.max_bridge_s:
+            return
         innovation = np.asarray(position, dtype=float) - np.asarray(prior.position, dtype=float)
         covariance = np.asarray(prior.position_covariance, dtype=float)
         if not (np.isfinite(innovation).all() and np.isfinite(covariance).all()):
             return
-        covariance = 0.5 * (covariance + covariance.T) \
+        scale = self._binned(np.maximum(self._scales.scale_table(), self._nis_scale()),
+                             self._fix_horizon)
+        covariance = scale * 0.5 * (covariance + covariance.T) \
             + self._shadow.params.mocap_position_noise ** 2 * np.eye(3)
-        nis = normalised_error_squared(innovation, covariance)
-        needed = edge_variance_needed(innovation, covariance, self._edge_shape(self._fix_horizon),
-                                      self.params.confidence)
-        self._gap_end_nis.append(nis)
-        self._gap_end_edge.append(needed)
+        self._gap_end_nis.append(normalised_error_squared(innovation, covariance))
+        self._gap_end_edge.append(edge_variance_needed(innovation, covariance, shape,
+                                                       self.params.confidence))
+        samples = len(self._gap_end_nis)
+        mean = math.fsum(self._gap_end_nis) / samples
+        if mean > nis_interval(samples, self.params.nis_probability)[1]:
+            self._edge_on = True
+        elif mean <= 3.0:
+            self._edge_on = False
         self._edge_value = None
         self._forget_derived(nis=False)  # the scale table reads _gap_end_scale
 
     def _gap_ends_mean_nis(self) -> float:
-        """The mean NIS of the fixes that ended the last ``gap_end_window`` real gaps when it is
-        beyond the windowed test's upper limit at ``nis_probability`` (the gaps' predictions
-        were worse than their covariance said), else 0."""
-        samples = len(self._gap_end_nis)
-        if samples:
-            mean = math.fsum(self._gap_end_nis) / samples
-            if mean > nis_interval(samples, self.params.nis_probability)[1]:
-                return mean
-        return 0.0
+        """The mean NIS of the fixes that ended the last ``gap_end_window`` real gaps while the
+        edge term is on (:meth:`_gap_end`: the gaps' predictions were worse than their bound
+        said), else 0."""
+        if not self._edge_on:
+            return 0.0
+        return math.fsum(self._gap_end_nis) / len(self._gap_end_nis)
 
     def _gap_end_scale(self) -> float:
         """The real gaps' matching factor ``mean NIS / 3`` when their test fails high
