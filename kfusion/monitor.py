@@ -499,15 +499,17 @@ def edge_variance_needed(error: ArrayLike, covariance: ArrayLike, shape: float,
     eigenvalues, vectors = np.linalg.eigh(0.5 * (S + S.T))
     if eigenvalues[0] <= 0:
         return math.inf
-    projected = (vectors.T @ e) ** 2
+    projected = ((vectors.T @ e) ** 2).tolist()
+    values = eigenvalues.tolist()
     limit = chi2_quantile(confidence, 3)
 
-    def distance(variance: float) -> float:
-        return float(np.sum(projected / (eigenvalues + variance * shape)))
+    def distance(variance: float) -> float:  # floats: 60 bisection steps in about 50 us
+        return sum(part / (value + variance * shape)
+                   for part, value in zip(projected, values, strict=True))
 
     if distance(0.0) <= limit:
         return 0.0
-    low, high = 0.0, float(projected.sum()) / (limit * shape)  # distance(high) <= limit
+    low, high = 0.0, sum(projected) / (limit * shape)  # distance(high) <= limit
     for _ in range(60):
         middle = 0.5 * (low + high)
         if distance(middle) > limit:
