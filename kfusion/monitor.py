@@ -99,9 +99,8 @@ at the gap's length H); while the mean NIS of the last ``gap_end_window`` of the
 windowed test high (against the predictions as the shadow gaps scaled them: what those
 explain is no edge), and until it is back to 3, the bound h s into a gap adds ``sigma^2 (a + b
 h)^2`` per axis, sigma^2 their ``matching_quantile``, and their ``mean NIS / 3`` scales the
-gap's covariance. The
-first gaps are bridged before the test has their evidence (a shift the size of the mocap noise
-per frame does not show in the fixes' own NIS; a larger one is a step:
+gap's covariance. The first gaps are bridged before the test has their evidence (a shift the
+size of the mocap noise per frame does not show in the fixes' own NIS; a larger one is a step:
 :meth:`ConsistencyMonitor._step`). The smoother tests the same offline, by hiding the fixes
 before each gap (:func:`kfusion.kalman.smoother.edge_holdout`).
 """
