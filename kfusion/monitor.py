@@ -822,7 +822,9 @@ class MonitorParameters:
         edge_s: how long before an occlusion the fixes may be off (s; ``edge_frames`` of
             them at the fixes' rate, 3 at 100 Hz): on BROAD's real occlusions the frames
             within about 10 ms of one deviate from the motion 1.3-2.3x more than the others,
-            and from 35 ms on no more (``benchmarks/occlusion_edges.py``).
+            and from 35 ms on no more (``benchmarks/occlusion_edges.py``). The smoother's
+            hold-out lengthens it where the data shows longer offsets
+            (:func:`kfusion.kalman.smoother.edge_holdout`).
     """
 
     nis_window: int = 100

@@ -148,7 +148,8 @@ def test_the_smoother_holds_the_edge_offsets_it_finds_by_hiding_them():
     simulation = simulated(seed=1)
     recording = faults.occlusion_edge_offsets(faults.Streams.of(simulation.recording)).recording
     params = resolve_parameters(recording, None, {})
-    edge = edge_holdout(recording, params, MonitorParameters())
+    edge, fixes = edge_holdout(recording, params, MonitorParameters())
+    assert fixes == 3  # 30 ms at 100 Hz: the offsets' own length
     # an offset d needs sigma^2 of about |d|^2 / F^-1_chi2(3)(0.99) = (1.5 mm)^2 / 11.3 for the
     # 99 % ellipsoid to reach it: sigma about 0.45 mm (plus the noise it rides on)
     assert 0.0003 < math.sqrt(edge) < 0.0015
@@ -166,7 +167,7 @@ def test_clean_data_has_no_edge_offset():
     simulation = simulated(seed=2, duration=20.0)
     recording = simulation.recording
     params = resolve_parameters(recording, None, {})
-    assert edge_holdout(recording, params, MonitorParameters()) == 0.0
+    assert edge_holdout(recording, params, MonitorParameters())[0] == 0.0
     run = run_filter(recording)
     assert run.monitor is not None and run.monitor.edge_offset_std_m == 0.0
     assert run.monitor.suspected_cause != EDGES
@@ -233,3 +234,22 @@ def test_gap_ends_the_shadow_gaps_explain_are_no_edge_offset():
     assert run.monitor is not None
     assert run.monitor.edge_offset_std_m == 0.0
     assert run.monitor.suspected_cause != EDGES
+
+
+def test_the_smoother_finds_offsets_longer_than_edge_s():
+    """Review finding: 1.5 mm on the 10 frames before each occlusion (100 ms, where edge_s
+    assumes 30 ms) left 3.3 % of the smoother's rows beyond the bound (3 seeds), most of them
+    at the shifted fixes the hold-out did not hide. The hold-out doubles the fixes it hides
+    while the outer half still disagrees."""
+    simulation = simulated(seed=1)
+    recording = faults.occlusion_edge_offsets(faults.Streams.of(simulation.recording),
+                                              0.0015, 10).recording
+    params = resolve_parameters(recording, None, {})
+    edge, fixes = edge_holdout(recording, params, MonitorParameters())
+    assert edge > 0 and fixes in (6, 12)  # 3 doubled once or twice: 10 lies between
+    run = run_smoother(recording)
+    truth = simulation.truth.position
+    usable = run.result.status != "lost"
+    bounds = np.array([position_bound(np.diag(std ** 2), 0.99) for std in run.result.std[usable]])
+    errors = np.linalg.norm(run.result.position[usable] - truth[usable], axis=1)
+    assert np.mean(errors > bounds) <= 0.02

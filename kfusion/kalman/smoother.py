@@ -41,7 +41,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
@@ -352,33 +352,36 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     return scales
 
 
-def edge_rows(t: NDArray[np.float64], fixed: NDArray[np.bool_], monitor: MonitorParameters
-              ) -> NDArray[np.bool_]:
-    """(m,) True at the last fixes before each gap that fall within ``monitor.edge_s``
-    (:func:`kfusion.monitor.edge_frames` of them at the fixes' period;
+EDGE_DOUBLINGS: Final = 3
+"""How many times :func:`edge_holdout` may double the fixes it hides before each gap (8 times
+``edge_frames``: 0.24 s at 100 Hz)."""
+
+
+def edge_rows(t: NDArray[np.float64], fixed: NDArray[np.bool_], monitor: MonitorParameters,
+              frames: int | None = None) -> NDArray[np.bool_]:
+    """(m,) True at the last ``frames`` fixes before each gap (default: those within
+    ``monitor.edge_s``, :func:`kfusion.monitor.edge_frames` at the fixes' period;
     :func:`kfusion.monitor.fixes_before_gaps`, gaps of at least ``settle_after_s``)."""
     before, period = fixes_before_gaps(t, fixed, monitor.settle_after_s)
     if not period > 0:
         return np.zeros(len(t), dtype=bool)
-    return (before >= 0) & (before < edge_frames(monitor.edge_s, period))
+    count = edge_frames(monitor.edge_s, period) if frames is None else frames
+    return (before >= 0) & (before < count)
 
 
-def edge_holdout(recording: Recording, params: KalmanParameters, monitor: MonitorParameters,
-                 measurement: str = BODY, engine: str = DEFAULT_ENGINE) -> float:
-    """Per-axis variance (m^2) of an offset on the fixes just before the recording's gaps (a
-    marker cluster partly occluded as the occlusion begins shifts the solved body), tested
-    offline: those fixes (:func:`edge_rows`) are hidden, the copy is smoothed without the
-    monitor, and each hidden fix z is compared with the smoothed point there, ``r = z -
-    p_s``, against ``S = P_s + R``. When the mean of ``r^T S^-1 r`` is within the windowed
-    NIS test's upper limit (:func:`kfusion.monitor.nis_interval` at ``nis_probability``) the
-    fixes before the gaps agree with the motion around them: 0. Else the
-    ``matching_quantile`` of the variance each needed (:func:`kfusion.monitor.
-    edge_variance_needed` with shape 1: the offset adds to the fix). 0 too without gaps."""
+def _hidden_edge_fixes(recording: Recording, params: KalmanParameters,
+                       monitor: MonitorParameters, frames: int, measurement: str, engine: str
+                       ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """Hide the last ``frames`` fixes before each gap (:func:`edge_rows`), smooth the copy
+    without the monitor, and compare each hidden fix z with the smoothed point there,
+    ``r = z - p_s``, against ``S = P_s + R``. Returns the hidden rows (k,) that the smoother
+    did not lose, their NIS ``r^T S^-1 r`` (k,) and the offset variance each needed (k,)
+    (:func:`kfusion.monitor.edge_variance_needed` with shape 1: the offset adds to the
+    fix)."""
     mocap = recording.mocap
-    fixed = mocap.visible
-    hidden_rows = edge_rows(mocap.t, fixed, monitor)
+    hidden_rows = edge_rows(mocap.t, mocap.visible, monitor, frames)
     if not hidden_rows.any():
-        return 0.0
+        return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
     position = np.where(hidden_rows[:, None], np.nan, mocap.position)
     quaternion = np.where(hidden_rows[:, None], np.nan, mocap.quaternion)
     hidden = recording.with_mocap(MocapFrames(t=mocap.t, position=position,
@@ -392,37 +395,73 @@ def edge_holdout(recording: Recording, params: KalmanParameters, monitor: Monito
     assert run.output_matrix is not None
     rows = np.flatnonzero(hidden_rows & (run.result.status != LOST)
                           & np.isfinite(mocap.position).all(axis=1))
-    if len(rows) == 0:
-        return 0.0
     noise = fix_noise_variance(params, run.nis, run.outcome)
     covariance = position_covariances(run.P[rows], run.output_matrix[rows]) \
         + noise * np.eye(3)
     residual = mocap.position[rows] - run.result.position[rows]
-    nis = [normalised_error_squared(residual[k], covariance[k]) for k in range(len(rows))]
-    if math.fsum(nis) / len(nis) <= nis_interval(len(nis), monitor.nis_probability)[1]:
-        return 0.0
-    needed = [edge_variance_needed(residual[k], covariance[k], 1.0, monitor.confidence)
-              for k in range(len(rows))]
-    return quantile_matching_scale(needed, monitor.matching_quantile)
+    nis = np.array([normalised_error_squared(residual[k], covariance[k])
+                    for k in range(len(rows))])
+    needed = np.array([edge_variance_needed(residual[k], covariance[k], 1.0,
+                                            monitor.confidence) for k in range(len(rows))])
+    return rows, nis, needed
+
+
+def _fails_high(nis: NDArray[np.float64], probability: float) -> bool:
+    """True when the mean of the NIS values (3 dof each) is beyond the windowed test's upper
+    limit at ``probability`` (:func:`kfusion.monitor.nis_interval`); False for none."""
+    return len(nis) > 0 and \
+        math.fsum(nis) / len(nis) > nis_interval(len(nis), probability)[1]
+
+
+def edge_holdout(recording: Recording, params: KalmanParameters, monitor: MonitorParameters,
+                 measurement: str = BODY, engine: str = DEFAULT_ENGINE) -> tuple[float, int]:
+    """(per-axis variance m^2, fixes): an offset on the last fixes before the recording's gaps
+    (a marker cluster partly occluded as the occlusion begins shifts the solved body), tested
+    offline by hiding them (:func:`_hidden_edge_fixes`).
+
+    The fixes within ``edge_s`` are hidden first. When their NIS's mean is within the windowed
+    test's upper limit at ``nis_probability`` they agree with the motion around them: (0,
+    those fixes). Else twice as many are hidden, and while the outer half of them fails the
+    same test too (the offset is longer than assumed), twice as many again, up to
+    :data:`EDGE_DOUBLINGS` times; the result is the ``matching_quantile`` of the variances
+    the hidden fixes of the last failing length needed, and that length. (0, 0) without
+    gaps."""
+    before, period = fixes_before_gaps(recording.mocap.t, recording.mocap.visible,
+                                       monitor.settle_after_s)
+    if not period > 0 or not (before >= 0).any():
+        return 0.0, 0
+    frames = edge_frames(monitor.edge_s, period)
+    _, nis, needed = _hidden_edge_fixes(recording, params, monitor, frames, measurement, engine)
+    if not _fails_high(nis, monitor.nis_probability):
+        return 0.0, frames
+    for _ in range(EDGE_DOUBLINGS):
+        longer = _hidden_edge_fixes(recording, params, monitor, 2 * frames, measurement,
+                                    engine)
+        outer = before[longer[0]] >= frames
+        if not _fails_high(longer[1][outer], monitor.nis_probability):
+            break
+        frames, needed = 2 * frames, longer[2]
+    return quantile_matching_scale(needed, monitor.matching_quantile), frames
 
 
 def smoothed_edge_shape(t: NDArray[np.float64], fixed: NDArray[np.bool_],
                         time_since_fix_s: NDArray[np.float64], params: KalmanParameters,
-                        monitor: MonitorParameters) -> NDArray[np.float64]:
-    """(m,) factor of the edge offset's variance (:func:`edge_holdout`) in each smoothed row
-    (times ``t`` (m,) s, ``fixed`` (m,) bool, ``time_since_fix_s`` (m,) s): at a fix j fixes
-    before a gap, the square of the smoothed rows' sensitivity to an offset on the last fixes
-    before it (:func:`kfusion.monitor.smoothed_edge_sensitivity`); in a gap h s after such a
-    fix, the forward filter's ``(a + b h)^2`` (:func:`kfusion.monitor.edge_sensitivity`: the
-    smoothed row leans on it from the gap's near side, and on clean fixes from the far side,
-    so its error is at most that); 0 elsewhere."""
+                        monitor: MonitorParameters, frames: int) -> NDArray[np.float64]:
+    """(m,) factor of the edge offset's variance (:func:`edge_holdout`, on the last ``frames``
+    fixes before each gap) in each smoothed row (times ``t`` (m,) s, ``fixed`` (m,) bool,
+    ``time_since_fix_s`` (m,) s): at a fix j fixes before a gap, the square of the smoothed
+    rows' sensitivity to an offset on the last fixes before it
+    (:func:`kfusion.monitor.smoothed_edge_sensitivity`); in a gap h s after such a fix, the
+    forward filter's ``(a + b h)^2`` (:func:`kfusion.monitor.edge_sensitivity`: the smoothed
+    row leans on it from the gap's near side, and on clean fixes from the far side, so its
+    error is at most that); 0 elsewhere."""
     before, period = fixes_before_gaps(t, fixed, monitor.settle_after_s)
     shape = np.zeros(len(t))
     if not period > 0:
         return shape
     reach = np.asarray(smoothed_edge_sensitivity(
-        params.accelerometer_noise_density, params.mocap_position_noise, period,
-        edge_frames(monitor.edge_s, period)))
+        params.accelerometer_noise_density, params.mocap_position_noise, period, frames,
+        max(60, 2 * frames)))
     near = (before >= 0) & (before < len(reach))
     shape[near] = reach[before[near]] ** 2
     # in a gap: rows without a fix after a fix that ends a run before a gap (before == 0)
@@ -430,7 +469,7 @@ def smoothed_edge_shape(t: NDArray[np.float64], fixed: NDArray[np.bool_],
     in_gap = ~fixed & (last_fix >= 0) & np.isfinite(time_since_fix_s)
     in_gap[in_gap] = before[last_fix[in_gap]] == 0
     a, b = edge_sensitivity(params.accelerometer_noise_density, params.mocap_position_noise,
-                            period, edge_frames(monitor.edge_s, period))
+                            period, frames)
     shape[in_gap] = (a + b * time_since_fix_s[in_gap]) ** 2
     return shape
 
@@ -593,11 +632,10 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         # on the same fix and model: it is not presented as surer than that
         variance = np.where(np.isfinite(recorder.at_fix_variance),
                             np.maximum(variance, recorder.at_fix_variance), variance)
-    edge_variance = 0.0 if monitor is None else edge_holdout(recording, params, monitor,
-                                                             measurement=measurement,
-                                                             engine=engine)
-    if edge_variance > 0:
-        shape = smoothed_edge_shape(t, fixed, since, params, monitor)  # type: ignore[arg-type]
+    edge_variance, edge_fixes = (0.0, 0) if monitor is None else edge_holdout(
+        recording, params, monitor, measurement=measurement, engine=engine)
+    if edge_variance > 0 and monitor is not None:
+        shape = smoothed_edge_shape(t, fixed, since, params, monitor, edge_fixes)
         variance = variance + edge_variance * shape[:, None]
     holdout = None if monitor is None else holdout_scales(recording, params, monitor,
                                                           measurement=measurement,
@@ -632,7 +670,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         fix_variance = widened + recorder.rival_variance
         if edge_variance > 0 and monitor is not None:
             # a fix shown alone is the offset fix itself (edge_holdout)
-            fix_variance = fix_variance + np.where(edge_rows(t, fixed, monitor),
+            fix_variance = fix_variance + np.where(edge_rows(t, fixed, monitor, edge_fixes),
                                                    edge_variance, 0.0)[:, None]
         status, position, variance = fix_only_rows(status, position, variance,
                                                    np.zeros(m, dtype=bool), fix_position,
