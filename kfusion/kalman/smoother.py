@@ -420,11 +420,11 @@ def edge_holdout(recording: Recording, params: KalmanParameters, monitor: Monito
     (a marker cluster partly occluded as the occlusion begins shifts the solved body), tested
     offline by hiding them (:func:`_hidden_edge_fixes`).
 
-    The fixes within ``edge_s`` are hidden first. When their NIS's mean
-    is within the windowed test's upper limit at ``nis_probability`` they agree with the
-    motion around them: (0, those fixes). Else twice as many are hidden, and while the outer
-    half of them fails the same test too (the offset is longer than assumed), twice as many
-    again, up to :data:`EDGE_DOUBLINGS` times. The variance is the ``matching_quantile`` of
+    The fixes within ``edge_s`` are hidden first. When their NIS's mean is within the windowed
+    test's upper limit at ``nis_probability`` they agree with the motion around them: (0,
+    those fixes). Else twice as many are hidden, and while the outer half of them fails the
+    same test too (the offset is longer than assumed), twice as many again, up to
+    :data:`EDGE_DOUBLINGS` times. The variance is the ``matching_quantile`` of
     what the first fixes needed, and of what each failing outer half needed, whichever is
     largest: each is measured where its hold-out is shortest (a long hold-out's inner fixes
     are extrapolated further, and on a tapping trial one of them set a 6.6 mm offset where the
