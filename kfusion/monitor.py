@@ -267,6 +267,15 @@ def nis_interval(samples: int, probability: float = 0.999, dof: int = 3) -> tupl
             chi2_quantile(1.0 - tail, dof * samples) / samples)
 
 
+def mean_beyond_limit(nis: Sequence[float] | NDArray[np.float64], probability: float = 0.999
+                      ) -> bool:
+    """True when the mean of N NIS values (3 dof each) is beyond the windowed test's upper limit
+    at ``probability`` (:func:`nis_interval`: the innovations larger than their covariance
+    says); False for none."""
+    samples = len(nis)
+    return samples > 0 and math.fsum(nis) / samples > nis_interval(samples, probability)[1]
+
+
 def nis_matching_scale(nis: ArrayLike, dof: int = 3) -> float:
     """Covariance-matching factor ``mean NIS / dof`` (1 for an empty window): the factor by which
     the innovation covariance is too small (> 1) or too large (< 1)."""
@@ -1287,11 +1296,9 @@ class ConsistencyMonitor:
         self._gap_end_nis.append(normalised_error_squared(innovation, covariance))
         self._gap_end_edge.append(edge_variance_needed(innovation, covariance, shape,
                                                        self.params.confidence))
-        samples = len(self._gap_end_nis)
-        mean = math.fsum(self._gap_end_nis) / samples
-        if mean > nis_interval(samples, self.params.nis_probability)[1]:
+        if mean_beyond_limit(self._gap_end_nis, self.params.nis_probability):
             self._edge_on = True
-        elif mean <= 3.0:
+        elif math.fsum(self._gap_end_nis) / len(self._gap_end_nis) <= 3.0:
             self._edge_on = False
         self._edge_value = None
         self._forget_derived(nis=False)  # the scale table reads _gap_end_scale

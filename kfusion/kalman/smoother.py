@@ -85,7 +85,7 @@ from kfusion.monitor import (
     edge_sensitivity,
     edge_variance_needed,
     fixes_before_gaps,
-    nis_interval,
+    mean_beyond_limit,
     nis_matching_scale,
     normalised_error_squared,
     quantile_matching_scale,
@@ -358,21 +358,19 @@ EDGE_DOUBLINGS: Final = 3
 
 
 def edge_rows(t: NDArray[np.float64], fixed: NDArray[np.bool_], monitor: MonitorParameters,
-              frames: int | None = None) -> NDArray[np.bool_]:
-    """(m,) True at the last ``frames`` fixes before each gap (default: those within
-    ``monitor.edge_s``, :func:`kfusion.monitor.edge_frames` at the fixes' period;
-    :func:`kfusion.monitor.fixes_before_gaps`, gaps of at least ``settle_after_s``)."""
-    before, period = fixes_before_gaps(t, fixed, monitor.settle_after_s)
-    if not period > 0:
-        return np.zeros(len(t), dtype=bool)
-    count = edge_frames(monitor.edge_s, period) if frames is None else frames
-    return (before >= 0) & (before < count)
+              frames: int) -> NDArray[np.bool_]:
+    """(m,) True at the last ``frames`` fixes before each gap
+    (:func:`kfusion.monitor.fixes_before_gaps`, gaps of at least ``settle_after_s``)."""
+    before, _ = fixes_before_gaps(t, fixed, monitor.settle_after_s)
+    return (before >= 0) & (before < frames)
 
 
 def _hidden_edge_fixes(recording: Recording, params: KalmanParameters,
-                       monitor: MonitorParameters, frames: int, measurement: str, engine: str
+                       monitor: MonitorParameters, before: NDArray[np.int64], frames: int,
+                       measurement: str, engine: str
                        ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
-    """Hide the last ``frames`` fixes before each gap (:func:`edge_rows`), smooth the copy
+    """Hide the last ``frames`` fixes before each gap (``before`` (m,): each fix's count of
+    fixes to the next gap, :func:`kfusion.monitor.fixes_before_gaps`), smooth the copy
     without the monitor, and compare each hidden fix z with the smoothed point there,
     ``r = z - p_s``, against ``S = P_s + R`` (R matched down by the copy's NIS when that
     shows it pessimistic, :func:`fix_noise_variance`). Returns the hidden rows (k,) that the
@@ -380,7 +378,7 @@ def _hidden_edge_fixes(recording: Recording, params: KalmanParameters,
     (k,) (:func:`kfusion.monitor.edge_variance_needed` with shape 1: the offset adds to the
     fix)."""
     mocap = recording.mocap
-    hidden_rows = edge_rows(mocap.t, mocap.visible, monitor, frames)
+    hidden_rows = (before >= 0) & (before < frames)
     if not hidden_rows.any():
         return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
     position = np.where(hidden_rows[:, None], np.nan, mocap.position)
@@ -407,13 +405,6 @@ def _hidden_edge_fixes(recording: Recording, params: KalmanParameters,
     return rows, nis, needed
 
 
-def _fails_high(nis: NDArray[np.float64], probability: float) -> bool:
-    """True when the mean of the NIS values (3 dof each) is beyond the windowed test's upper
-    limit at ``probability`` (:func:`kfusion.monitor.nis_interval`); False for none."""
-    return len(nis) > 0 and \
-        math.fsum(nis) / len(nis) > nis_interval(len(nis), probability)[1]
-
-
 def edge_holdout(recording: Recording, params: KalmanParameters, monitor: MonitorParameters,
                  measurement: str = BODY, engine: str = DEFAULT_ENGINE) -> tuple[float, int]:
     """(per-axis variance m^2, fixes): an offset on the last fixes before the recording's gaps
@@ -434,16 +425,16 @@ def edge_holdout(recording: Recording, params: KalmanParameters, monitor: Monito
     if not period > 0 or not (before >= 0).any():
         return 0.0, 0
     frames = edge_frames(monitor.edge_s, period)
-    _, nis, needed = _hidden_edge_fixes(recording, params, monitor, frames, measurement,
-                                        engine)
-    if not _fails_high(nis, monitor.nis_probability):
+    _, nis, needed = _hidden_edge_fixes(recording, params, monitor, before, frames,
+                                        measurement, engine)
+    if not mean_beyond_limit(nis, monitor.nis_probability):
         return 0.0, frames
     variance = quantile_matching_scale(needed, monitor.matching_quantile)
     for _ in range(EDGE_DOUBLINGS):
-        rows, nis, needed = _hidden_edge_fixes(recording, params, monitor, 2 * frames,
-                                               measurement, engine)
+        rows, nis, needed = _hidden_edge_fixes(recording, params, monitor, before,
+                                               2 * frames, measurement, engine)
         outer = before[rows] >= frames
-        if not _fails_high(nis[outer], monitor.nis_probability):
+        if not mean_beyond_limit(nis[outer], monitor.nis_probability):
             break
         variance = max(variance,
                        quantile_matching_scale(needed[outer], monitor.matching_quantile))
