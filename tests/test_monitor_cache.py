@@ -31,11 +31,14 @@ def derived(monitor: ConsistencyMonitor) -> tuple[object, ...]:
 
 def nis_factors(monitor: ConsistencyMonitor) -> tuple[float, float]:
     """The monitor's NIS factors by the public functions: the matching factor and the NIS
-    scale (the matching factor where the windowed test fails high, else 0)."""
+    scale (the matching factor where the windowed test fails high, else 0; at least the block
+    test's mean block NIS / 3 while that test is on)."""
     window = list(monitor._nis)
     test = windowed_nis_test(window, monitor.params.nis_probability)
     matching = nis_matching_scale(window)
-    return matching, matching if test.mean > test.upper else 0.0
+    blocks = list(monitor._block_nis)
+    block = math.fsum(blocks) / (3.0 * len(blocks)) if monitor._block_on else 0.0
+    return matching, max(matching if test.mean > test.upper else 0.0, block)
 
 
 def test_cached_values_equal_fresh_ones_at_every_row_and_after_restores():

@@ -1172,12 +1172,20 @@ def predict_packed_state(stamp, f, omega, state, config, counters, n, work):
 @njit(cache=True)
 def packed_update(t, visible, z, q_global_body, has_quaternion, state, config, counters, n):
     """:func:`update_step` on a packed state (:func:`state_views`); returns (outcome code,
-    NIS)."""
+    NIS, y (3,) m, S (3, 3) m^2): the innovation and its covariance when the fix was fused
+    into a prediction, else NaN (:attr:`kfusion.kalman.filter.UpdateOutcome.y`)."""
     x, P, orientation, scalars, prior_x, prior_P = state_views(state, n)
-    kind, nis, _ = update_step(t, visible, z, q_global_body, has_quaternion, x, P,
-                               orientation, scalars, config, counters, np.zeros((0, 0)),
-                               prior_x, prior_P, np.empty(work_size(n)))
-    return kind, nis
+    work = np.empty(work_size(n))
+    kind, nis, fused = update_step(t, visible, z, q_global_body, has_quaternion, x, P,
+                                   orientation, scalars, config, counters, np.zeros((0, 0)),
+                                   prior_x, prior_P, work)
+    y = np.full(3, math.nan)
+    S = np.full((3, 3), math.nan)
+    if fused:
+        _, _, y_work, _, S_work, _, _ = update_views(work, n)
+        y[:] = y_work
+        S[:, :] = S_work
+    return kind, nis, y, S
 
 
 def initial_state(n: int) -> NDArray[np.float64]:
@@ -1195,8 +1203,8 @@ def initial_state(n: int) -> NDArray[np.float64]:
 def filter_events(stream, index, begin, end, imu_t, accelerometer, gyroscope, imu_finite,
                   mocap_t, mocap_position, mocap_quaternion, visible, config, state, counters,
                   row_offset, out_x, out_P, out_H, out_offset, out_outcome, out_nis,
-                  out_dead_reckoned, out_x_predicted, out_P_predicted, out_transition,
-                  save_every, saved_states, saved_events):
+                  out_y, out_S, out_dead_reckoned, out_x_predicted, out_P_predicted,
+                  out_transition, save_every, saved_states, saved_events):
     """The batch loop over merged events ``begin`` to ``end`` - 1 (stream 0 IMU, 1 mocap; index
     its row) from the packed ``state`` (:func:`state_views`, updated in place). Fills one row
     of the outputs per mocap row (row ``r`` at ``r - row_offset``). Returns -1, or the event
@@ -1245,6 +1253,10 @@ pass runs the loop again from there (:func:`smooth_rows`)."""
         out = row - row_offset
         out_outcome[out] = kind
         out_nis[out] = nis
+        if fused and out_y.shape[0] > 0:  # the innovation and its S (UpdateOutcome.y, .S)
+            _, _, y, _, S, _, _ = update_views(work, size)
+            out_y[out] = y
+            out_S[out] = S
         out_dead_reckoned[out] = t <= dead_reckoning_until(scalars, config)
         if scalars[INITIALISED_FLAG] != 0.0:
             out_x[out] = x
@@ -1303,6 +1315,8 @@ def smooth_rows(stream, index, row_event, imu_t, accelerometer, gyroscope, imu_f
     scratch_dead_reckoned = np.empty(save_every, dtype=np.bool_)
     no_states = np.zeros((0, 0))
     no_events = np.zeros(0, dtype=np.int64)
+    no_innovations = np.zeros((0, 3))
+    no_innovation_covariances = np.zeros((0, 3, 3))
     blocks = (m + save_every - 1) // save_every
     for block in range(blocks - 1, -1, -1):
         first_row = block * save_every
@@ -1318,8 +1332,8 @@ def smooth_rows(stream, index, row_event, imu_t, accelerometer, gyroscope, imu_f
                       gyroscope, imu_finite, mocap_t, mocap_position, mocap_quaternion,
                       visible, config, state, counters, first_row, scratch_x, scratch_P,
                       scratch_H, scratch_offset, scratch_outcome, scratch_nis,
-                      scratch_dead_reckoned, x_predicted, P_predicted, transitions, 0,
-                      no_states, no_events)
+                      no_innovations, no_innovation_covariances, scratch_dead_reckoned,
+                      x_predicted, P_predicted, transitions, 0, no_states, no_events)
         for k in range(last_row - 1, first_row - 2, -1):
             if k < 0 or segment[k] < 0 or segment[k + 1] != segment[k]:
                 continue
@@ -1410,6 +1424,10 @@ class KernelRun:
         self.dead_reckoned = dead_reckoned
         self.counters = counters
         self.failed_event = failed_event
+        # per row, the innovation y (m, 3) m and its S (m, 3, 3) m^2 where the row's fix was
+        # fused into a prediction, NaN elsewhere (UpdateOutcome.y, .S; run_kernel fills them)
+        self.y = np.full((len(nis), 3), np.nan)
+        self.S = np.full((len(nis), 3, 3), np.nan)
         # smoother support (run_kernel(smoothing=True)): the kernel inputs, configuration,
         # first state and the states saved every SAVE_EVERY rows, for smooth_in_place
         self.replay: Replay | None = None
@@ -1481,6 +1499,8 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     out_offset = np.zeros((rows, 3))
     out_outcome = np.full(rows, -1, dtype=np.int64)
     out_nis = np.full(rows, np.nan)
+    out_y = np.full((rows, 3), np.nan)
+    out_S = np.full((rows, 3, 3), np.nan)
     out_dead_reckoned = np.zeros(rows, dtype=bool)
     counters = np.zeros(len(COUNTER_INDEX), dtype=np.int64)
     no_rows = np.zeros((0, size, size))
@@ -1492,11 +1512,13 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     saved_events = np.zeros(saved, dtype=np.int64)
     failed = filter_events(  # type: ignore[call-arg]
         inputs[0], inputs[1], 0, len(stream), *inputs[2:], config, state, counters, 0, out_x,
-        out_P, out_H, out_offset, out_outcome, out_nis, out_dead_reckoned,
+        out_P, out_H, out_offset, out_outcome, out_nis, out_y, out_S, out_dead_reckoned,
         np.zeros((0, size)), no_rows, no_rows, save_every, saved_states, saved_events)
     run = KernelRun(out_x, out_P, out_H, out_offset, _OUTCOME_LOOKUP[out_outcome], out_nis,
                     out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(), strict=True)),
                     int(failed))
+    run.y = out_y
+    run.S = out_S
     if save_every > 0:
         run.replay = Replay(inputs, config, first_state, saved_states)
         run.replay.saved_events = saved_events
@@ -1548,8 +1570,8 @@ class Checkpoints:
         failed = filter_events(  # type: ignore[call-arg]
             inputs[0], inputs[1], begin, end, *inputs[2:9], visible, self.replay.config,
             state, self.counters, first_row, out_x, out_P, out_H, out_offset,
-            np.full(rows, -1, dtype=np.int64), np.full(rows, np.nan),
-            np.zeros(rows, dtype=bool), np.zeros((0, n)), no_rows, no_rows, 0,
+            np.full(rows, -1, dtype=np.int64), np.full(rows, np.nan), np.zeros((0, 3)),
+            np.zeros((0, 3, 3)), np.zeros(rows, dtype=bool), np.zeros((0, n)), no_rows, no_rows, 0,
             np.zeros((0, len(state))), np.zeros(0, dtype=np.int64))
         if failed >= 0:
             raise RuntimeError(f"replay of events {begin}..{end}: the kernel stopped at "

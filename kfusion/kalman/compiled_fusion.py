@@ -188,11 +188,13 @@ class CompiledFusion:
                quaternion: ArrayLike | None = None) -> UpdateOutcome:
         """:meth:`KalmanFusion.update` (same checks, outcomes and errors)."""
         t, z, q_global_body = checked_frame(t, self.time, position, quaternion)
-        kind, nis = compiled.packed_update(
+        kind, nis, y, S = compiled.packed_update(
             t, z is not None, _NO_POSITION if z is None else np.ascontiguousarray(z),
             self._no_quaternion if q_global_body is None else np.ascontiguousarray(q_global_body),
             q_global_body is not None, self._state, self._config, self._counters, self.size)
-        return UpdateOutcome(t, compiled.OUTCOME_NAMES[kind], float(nis))
+        fused = not math.isnan(y[0])
+        return UpdateOutcome(t, compiled.OUTCOME_NAMES[kind], float(nis),
+                             y=y if fused else None, S=S if fused else None)
 
     def estimate(self, t: float | None = None) -> FilterEstimate:
         """:meth:`KalmanFusion.estimate`: the estimate at t (s; default: the state's time)."""

@@ -182,6 +182,11 @@ class UpdateOutcome:
         marker_origin: the rigid-body origin (m, global frame) solved from this frame's markers
             when 3 or more fitted (Kabsch), else None: the fix a rigid-body consumer (the
             consistency monitor) compares with.
+        y, S: the innovation ``y = z - c - H x-`` (3,) m and its covariance ``S = H P- H^T +
+            R`` (3, 3) m^2 of a rigid-body fix compared with the prediction (accepted,
+            reacquired; before any re-acquisition inflation), else None: the consistency
+            monitor's block test (:func:`kfusion.monitor.block_nis`) sums them. Not compared
+            by ``==`` (the engines agree to rounding, not bit for bit).
     """
 
     t: float
@@ -190,6 +195,8 @@ class UpdateOutcome:
     markers_used: int = 0
     markers_gated: int = 0
     marker_origin: tuple[float, float, float] | None = None
+    y: NDArray[np.float64] | None = field(default=None, compare=False)
+    S: NDArray[np.float64] | None = field(default=None, compare=False)
 
     @property
     def accepted(self) -> bool:
@@ -886,7 +893,7 @@ class KalmanFusion:
         self._mark_fix(t)
         if kind == REACQUIRED:
             self._counters["reacquired"] += 1
-        return UpdateOutcome(t, kind, nis)
+        return UpdateOutcome(t, kind, nis, y=y, S=S)
 
     def _update_markers_valid(self, t: float, points: NDArray[np.float64],
                               body: NDArray[np.float64], shared_frames: int | None = None

@@ -178,6 +178,7 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
     initialised = recorder.initialised.tolist()
     kinds = run.outcome.tolist()
     nis = run.nis.tolist()
+    fused = np.isfinite(run.y[:, 0]).tolist()  # rows with an innovation (UpdateOutcome.y)
     shown = np.asarray(visible, dtype=bool).tolist()
     fixes = np.asarray(position, dtype=float)
     for row in range(len(times)):
@@ -188,7 +189,8 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
                                             checkpoints.state_before(events[row]),
                                             _no_counters()))
             prior = before.estimate(t)
-        outcome = UpdateOutcome(t, kinds[row], nis[row])
+        outcome = UpdateOutcome(t, kinds[row], nis[row], y=run.y[row] if fused[row] else None,
+                                S=run.S[row] if fused[row] else None)
         main.row = row
         monitor.mocap(t, fixes[row].copy() if shown[row] else None, outcome,
                       cast(KalmanFusion, main), prior)
