@@ -263,16 +263,17 @@ def test_a_fix_ending_a_gap_keeps_its_prediction_as_a_rival_by_hand():
                             position_covariance=4 * r * np.eye(3))
     fix(t, [0.0, 0.0, 0.0], prior)
     expected = np.diag([0.003 ** 2, 0.0, 0.0]) + 5 * r * np.eye(3)
-    np.testing.assert_allclose(monitor.cover_rivals(t, np.zeros(3), zeros), expected,
-                               rtol=1e-12)
-    # for reacquisition_rival_s, its end included, then no more; not counted as a step. The
-    # fix ending the gap has an NIS of 20 (beyond the edge test's 17.7 for one gap end): from
-    # then on the bound also holds an offset on the fixes before a gap (its own tests:
-    # test_edge_offsets), h s after the last fix
+
+    # The fix ending the gap has an NIS of 20 (beyond the edge test's 17.7 for one gap end):
+    # from then on the bound also holds an offset on the fixes before a gap (its own tests:
+    # test_edge_offsets), at the last fix and h s after it
     def edge(at):
         return monitor.edge_offset_variance(at) * np.eye(3)
 
-    assert edge(t + life)[0, 0] > 0
+    assert edge(t)[0, 0] > 0 and edge(t + life)[0, 0] > edge(t)[0, 0]
+    np.testing.assert_allclose(monitor.cover_rivals(t, np.zeros(3), zeros),
+                               expected + edge(t), rtol=1e-12)
+    # for reacquisition_rival_s, its end included, then no more; not counted as a step
     np.testing.assert_allclose(monitor.cover_rivals(t + life, np.zeros(3), zeros),
                                expected + edge(t + life), rtol=1e-12)
     np.testing.assert_allclose(monitor.cover_rivals(t + life + 1e-6, np.zeros(3), zeros),
@@ -318,8 +319,11 @@ def test_a_short_rival_does_not_end_a_longer_smaller_step():
     monitor.mocap(t, np.zeros(3), UpdateOutcome(t, ACCEPTED, 3.0),
                   _Posterior(fusion, np.zeros(3), r / 2 * np.eye(3)), prior)
     larger = np.diag([0.0, 0.005 ** 2, 0.0]) + 2 * r * np.eye(3)
-    np.testing.assert_allclose(monitor.cover_rivals(t, np.zeros(3), zeros), larger, rtol=1e-12)
-    # (the gap's end, 5 mm off, also starts the edge term: test_edge_offsets)
+    # (the gap's end, 5 mm off, also starts the edge term, at the fix and after it:
+    # test_edge_offsets)
+    np.testing.assert_allclose(monitor.cover_rivals(t, np.zeros(3), zeros),
+                               larger + monitor.edge_offset_variance(t) * np.eye(3),
+                               rtol=1e-12)
     edge = monitor.edge_offset_variance(t + 0.25) * np.eye(3)
     np.testing.assert_allclose(monitor.cover_rivals(t + 0.25, np.zeros(3), zeros), step + edge,
                                rtol=1e-12)
