@@ -382,6 +382,7 @@ BROAD_FAULTS: list[tuple[str, Fault]] = [
      faults.occlusion_edge_offsets),
     ("BROAD + body 3 mm off on the 10 frames after each occlusion",
      lambda s: faults.occlusion_edge_offsets(s, 0.003, 10, "after")),
+    ("BROAD + IMU rate 8x lower from halfway, no anti-aliasing", faults.imu_rate_drops),
 ]
 
 
