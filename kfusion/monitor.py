@@ -293,6 +293,20 @@ def mean_beyond_limit(nis: Sequence[float] | NDArray[np.float64], probability: f
     return samples > 0 and math.fsum(nis) / samples > nis_interval(samples, probability)[1]
 
 
+def step_offset_variance(noise_variance: float, params: MonitorParameters) -> float:
+    """Per-axis variance (m^2) of the largest offset a fix can carry below the step rule,
+    as an edge-offset sigma^2: a fix offset by d fused with an NIS beyond
+    ``F^-1_chi2(3)(step_probability)`` (30.7) is a step (:meth:`ConsistencyMonitor._step`, a
+    rival), and ``|d|^2 <= 30.7 S`` below it, with S at least the mocap noise R
+    (``noise_variance``, m^2, per axis); the sigma^2 whose 99 % ellipsoid reaches such a d::
+
+        sigma_step^2 = F^-1_chi2(3)(step_probability) R / F^-1_chi2(3)(confidence)
+
+    (2.7 R: 0.49 mm for R = (0.3 mm)^2)."""
+    return (chi2_quantile(params.step_probability, 3) * noise_variance
+            / chi2_quantile(params.confidence, 3))
+
+
 def block_nis(y_sum: ArrayLike, S_sum: ArrayLike) -> float:
     """NIS of the sum of B consecutive innovations: ``(sum y_k)^T (sum S_k)^-1 (sum y_k)``, for
     the innovations y_k (3,) m of B fixes in a run and their covariances S_k (3, 3) m^2 summed
@@ -1591,16 +1605,24 @@ class ConsistencyMonitor:
         """Per-axis variance (m^2) at t (s) at or after the last fused fix from an offset on the
         fixes before it: ``sigma^2 (a + b h)^2`` h s after it (:meth:`_edge_variance`,
         :func:`edge_sensitivity`), 0 before it and while the real gaps' ends agree with their
-        predictions. At the fix itself (h = 0) ``sigma^2 a^2``: online no fix is known to be
-        the last before an occlusion until the occlusion comes, and the fused position already
-        carries ``a`` of an offset on the fixes it ends (when the fixes before occlusions drift
-        1.5 mm over 5 frames, those fixes alone put 1 % of the rows beyond the bound)."""
+        predictions. At the fix itself (h = 0) ``min(sigma^2, sigma_step^2) a^2``: online no
+        fix is known to be the last before an occlusion until the occlusion comes, and the
+        fused position already carries ``a`` of an offset on the fixes it ends (when the fixes
+        before occlusions drift 1.5 mm over 5 frames, those fixes alone put 1 % of the rows
+        beyond the bound). sigma^2 is matched on the gap ends, where the IMU's own errors weigh
+        in (one ordinary miss at a gap end set 4.3 mm for 1.5 mm offsets, and every fix's bound
+        9x wider); at a fix it is capped by :func:`step_offset_variance`, since a larger
+        offset is a step and the step rule already keeps its prediction as a rival."""
         if self._last_fix is None or t < self._last_fix[0]:
             return 0.0
         variance = self._edge_variance()
         if variance <= 0:
             return 0.0
-        return variance * self._edge_shape(t - self._last_fix[0])
+        horizon = t - self._last_fix[0]
+        if horizon == 0.0:
+            variance = min(variance, step_offset_variance(
+                self._shadow.params.mocap_position_noise ** 2, self.params))
+        return variance * self._edge_shape(horizon)
 
     def has_rivals(self, t: float) -> bool:
         """True when :meth:`cover_rivals` widens a covariance at t (s): a fix was gated since

@@ -30,6 +30,7 @@ from kfusion.monitor import (
     edge_variance_needed,
     fixes_before_gaps,
     smoothed_edge_sensitivity,
+    step_offset_variance,
 )
 from kfusion.recording import occlusion_runs
 from kfusion.simulate import OcclusionSpec, faults, simulate
@@ -148,11 +149,12 @@ def test_the_fixes_before_the_gaps_are_covered_once_the_edges_showed_an_offset()
     """Online no fix is known to be the last before an occlusion until the occlusion comes,
     and the fused position carries a share ``a`` of the offset on the fixes it ends. Before the
     edge term covered the fixes too, 16 of the drifting fixes before the gaps from the eighth
-    on were beyond the bound on this seed (over 3 seeds 1 % of all rows, more than half as
-    many as all the gaps' misses); now none."""
+    on were beyond the bound on this seed; now 6 (at most the offset a step would have, as
+    sigma: the cap keeps one outlying gap end from widening every fix 9x)."""
     simulation = simulated(seed=0)
     recording = faults.occlusion_edge_drift(faults.Streams.of(simulation.recording)).recording
-    result = run_filter(recording).result
+    run = run_filter(recording)
+    result = run.result
     truth = simulation.truth.position
     wrong = rows = 0
     for start, _ in occlusion_runs(simulation.recording.mocap.visible)[8:]:
@@ -162,7 +164,34 @@ def test_the_fixes_before_the_gaps_are_covered_once_the_edges_showed_an_offset()
             bound = position_bound(np.diag(result.std[row] ** 2), 0.99)
             wrong += float(np.linalg.norm(result.position[row] - truth[row])) > bound
     assert rows >= 30
-    assert wrong == 0
+    assert wrong <= 0.25 * rows
+    # the fixes' bound stays of the fixes' size: within 3x the clean recording's median
+    clean = run_filter(simulation.recording).result
+    fixes = np.asarray(result.status) == "tracked"
+    assert np.median(result.std[fixes]) <= 3 * np.median(clean.std[fixes])
+
+
+def test_the_smoother_leaves_the_filters_edge_term_at_fixes_out():
+    """Offline the hold-out knows which fixes end before a gap (edge_holdout); the forward
+    pass's cover for every fix (it cannot know them) stays out of the smoothed rows: with it
+    their median std at fixes was 17x the clean recording's, without it 1.9x (the hold-out's
+    own cover of the fixes before gaps, and the rivals)."""
+    simulation = simulated(seed=0)
+    recording = faults.occlusion_edge_offsets(faults.Streams.of(simulation.recording)).recording
+    run = run_smoother(recording)
+    assert run.monitor is not None and run.monitor.edge_offset_std_m > 0
+    fixes = np.asarray(run.result.status) == "tracked"
+    clean = run_smoother(simulation.recording).result
+    assert np.median(run.result.std[fixes]) <= 2.5 * np.median(clean.std[fixes])
+
+
+def test_the_edge_term_at_a_fix_is_capped_at_a_step_by_hand():
+    """sigma_step^2 = F^-1(1 - 1e-6) R / F^-1(0.99) = 30.66 / 11.34 R (chi-square, 3 dof)."""
+    params = MonitorParameters()
+    noise = (0.3e-3) ** 2
+    assert step_offset_variance(noise, params) == pytest.approx(
+        chi2_quantile(1 - 1e-6, 3) / chi2_quantile(0.99, 3) * noise)
+    assert step_offset_variance(noise, params) == pytest.approx(2.704 * noise, rel=1e-3)
 
 
 def test_the_smoother_holds_the_edge_offsets_it_finds_by_hiding_them():

@@ -392,6 +392,10 @@ class _RowRecorder:
         self.dead_reckoned = np.zeros(rows, dtype=bool)
         # (m, 3) m^2: variance the monitor's rival hypotheses add per axis (cover_rivals)
         self.rival_variance = np.zeros((rows, 3))
+        # (m,) m^2: the part of it at a fused fix from the edge-offset term
+        # (ConsistencyMonitor.edge_offset_variance at h = 0): the filter's online cover for
+        # fixes that may turn out to end before an occlusion; the smoother leaves it out
+        self.fix_edge_variance = np.zeros(rows)
         # where the monitor refused the IMU model at a fix: that fix (m) and its variance
         # (m^2, the mocap noise and the rivals), NaN elsewhere
         self.fix_position = np.full((rows, 3), np.nan)
@@ -445,6 +449,8 @@ class _RowRecorder:
                     outcome.t, output_point(H, self.x[row], self.output_offset[row]),
                     np.zeros((3, 3)))
                 self.rival_variance[row] = np.diag(widened)
+                if outcome.accepted:
+                    self.fix_edge_variance[row] = monitor.edge_offset_variance(outcome.t)
 
     @classmethod
     def from_kernel(cls, fusion: KalmanFusion, run: Any) -> _RowRecorder:
@@ -457,6 +463,7 @@ class _RowRecorder:
         recorder.allowed = np.ones(rows, dtype=bool)
         recorder.tested = np.ones(rows, dtype=bool)
         recorder.rival_variance = np.zeros((rows, 3))
+        recorder.fix_edge_variance = np.zeros(rows)
         recorder.fix_position = np.full((rows, 3), np.nan)
         recorder.fix_variance = np.full((rows, 3), np.nan)
         recorder.at_fix_variance = np.full((rows, 3), np.nan)

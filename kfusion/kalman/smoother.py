@@ -646,12 +646,17 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         status, variance, _ = apply_monitor(status, variance, table, allowed,
                                             nearest_fix_distance(t, fixed),
                                             holdout.params.horizon_edges_s)
+    # the forward pass's rival hypotheses, less its edge term at fixes: online no fix is known
+    # to end before an occlusion, so the filter covers every fix while the edge test is on;
+    # offline the hold-out knows which do and covers those (edge_holdout, above)
+    forward_rivals = np.maximum(recorder.rival_variance - recorder.fix_edge_variance[:, None],
+                                0.0)
     if watcher is not None:
         # the forward pass's rival hypotheses (a gated fix, or the prediction a fix replaced
         # after gating) are positions the data left open, and so are the fixes the smoothed
         # rows miss by more than their noise: the smoothed bound holds them too
         noise = fix_noise_variance(params, recorder.nis, recorder.outcome)
-        variance = (variance + recorder.rival_variance
+        variance = (variance + forward_rivals
                     + fix_residual_rivals(fixed, recording.mocap.position - position, noise,
                                           watcher.params.confidence))
     # the smoothed rows are built on the IMU model wherever they are: when the hold-out or the
@@ -665,7 +670,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         noise = params.mocap_position_noise ** 2
         widened = np.where(np.isfinite(recorder.at_fix_variance),
                            np.maximum(recorder.at_fix_variance, noise), noise)
-        fix_variance = widened + recorder.rival_variance
+        fix_variance = widened + forward_rivals
         if edge_variance > 0 and monitor is not None:
             # a fix shown alone is the offset fix itself (edge_holdout)
             fix_variance = fix_variance + np.where(edge_rows(t, fixed, monitor, edge_fixes),
