@@ -1087,8 +1087,8 @@ class ConsistencyMonitor:
         # the block test (block_nis): the running block's sums of y (3,) m and S (3, 3) m^2 and
         # its fixes (each sum built new, never changed in place: snapshots share them), and the
         # last nis_window // block_fixes blocks' NIS
-        self._block_y = np.zeros(3)
-        self._block_S = np.zeros((3, 3))
+        self._block_y = _NO_Y
+        self._block_S = _NO_S
         self._block_count = 0
         self._block_nis: deque[float] = deque(
             maxlen=max(1, self.params.nis_window // self.params.block_fixes))
@@ -1322,19 +1322,21 @@ class ConsistencyMonitor:
         the gap-end tests judge it) or carries no innovation (marker-level fusion) starts the
         next block instead. A full block's NIS joins the window."""
         y, S = outcome.y, outcome.S
-        run = self._last_fix is not None and not reacquired_after_gap(
-            t - self._last_fix[0], self.params.settle_after_s)
-        if not run or y is None or S is None or not (np.isfinite(y).all()
-                                                     and np.isfinite(S).all()):
-            self._block_y, self._block_S, self._block_count = np.zeros(3), np.zeros((3, 3)), 0
+        if y is None or S is None or self._last_fix is None or reacquired_after_gap(
+                t - self._last_fix[0], self.params.settle_after_s):
+            self._block_y, self._block_S, self._block_count = _NO_Y, _NO_S, 0
             return
+        # new sums, never changed in place (snapshots share them)
         self._block_y = self._block_y + y
         self._block_S = self._block_S + S
         self._block_count += 1
         if self._block_count == self.params.block_fixes:
+            value = block_nis(self._block_y, self._block_S)  # inf unless finite and regular
+            self._block_y, self._block_S, self._block_count = _NO_Y, _NO_S, 0
+            if math.isinf(value):
+                return  # a non-finite innovation: the block is dropped
             blocks = self._block_nis
-            blocks.append(block_nis(self._block_y, self._block_S))
-            self._block_y, self._block_S, self._block_count = np.zeros(3), np.zeros((3, 3)), 0
+            blocks.append(value)
             if mean_beyond_limit(blocks, self.params.nis_probability):
                 self._block_on = True
             elif math.fsum(blocks) / len(blocks) <= 3.0:
@@ -1743,6 +1745,12 @@ class ConsistencyMonitor:
                              clock_offset_std_s=math.nan if clock is None else clock[1],
                              steps=self._step_count, edge_offset_std_m=math.sqrt(edge))
 
+
+_NO_Y: Final = np.zeros(3)
+_NO_S: Final = np.zeros((3, 3))
+"""An empty block's sums of y (3,) m and S (3, 3) m^2 (read only, shared)."""
+for _array in (_NO_Y, _NO_S):
+    _array.flags.writeable = False
 
 _NOT_STATE: Final = ("_shadow", "params", "_gravity")
 """ConsistencyMonitor attributes that are configuration, not state (left out of snapshots)."""
