@@ -302,25 +302,29 @@ def step_offset_variance(noise_variance: float, params: MonitorParameters) -> fl
 
         sigma_step^2 = F^-1_chi2(3)(step_probability) R / F^-1_chi2(3)(confidence)
 
-    (2.7 R: 0.49 mm for R = (0.3 mm)^2)."""
+    (2.7 R: 0.49 mm for R = (0.3 mm)^2). It bounds an offset that appears at once. A drift
+    whose frame-to-frame steps stay below the rule is followed by the filter and can carry
+    more (3 mm over 20 frames: the fixes before the gaps beyond the bound as often as with no
+    cover at fixes); those are left to the gaps' cover (open)."""
     return (chi2_quantile(params.step_probability, 3) * noise_variance
             / chi2_quantile(params.confidence, 3))
 
 
 def block_nis(y_sum: ArrayLike, S_sum: ArrayLike) -> float:
-    """NIS of the sum of B consecutive innovations: ``(sum y_k)^T (sum S_k)^-1 (sum y_k)``, for
-    the innovations y_k (3,) m of B fixes in a run and their covariances S_k (3, 3) m^2 summed
-    (``y_sum`` (3,) m, ``S_sum`` (3, 3) m^2); inf when the sum of S is singular.
+    """NIS of the sum of B consecutive innovations: ``(sum y_k)^T (sum S_k)^-1 (sum y_k)``,
+    for the innovations y_k (3,) m of B fixes in a run and their covariances S_k (3, 3) m^2
+    summed (``y_sum`` (3,) m, ``S_sum`` (3, 3) m^2); inf when the sum of S is singular.
 
     A consistent filter's innovations are white, so ``Var(sum y_k) = sum S_k`` and the block
     NIS is chi-square(3): mean 3, like one fix's. Errors the model takes as white but that
-    persist over several fixes (an IMU sample held over four fixes when its stream slows down,
-    a drift) correlate the innovations: each fix's NIS can stay near 3 while the sum grows
-    like B instead of sqrt(B), and the block NIS grows with it (lag-1 correlation rho over B
-    fixes: about ``1 + 2 rho`` times 3). The fused position averages recent fixes, so it is
-    then worse than P+ says by about the same factor; :meth:`ConsistencyMonitor.at_fix` widens
-    it by the window's ``mean / 3`` as for the per-fix test (scalar check: B = 2, y = (1, 1),
-    S = (1, 1): 4 / 2 = 2; y = (1, -1): 0)."""
+    persist over several fixes (an IMU sample held over four fixes when its stream slows
+    down, a drift) correlate the innovations: each fix's NIS can stay near 3 while the sum
+    grows like B instead of sqrt(B), and the block NIS grows with it (with correlations
+    rho_k at lag k, its mean is ``3 (1 + 2 sum_k (1 - k / B) rho_k)``: 6.1 x 3 for AR(1),
+    rho = 0.8, B = 8). The fused position averages recent fixes, so it is then worse than P+
+    says by about the same factor; :meth:`ConsistencyMonitor.at_fix` widens it by the
+    window's ``mean / 3`` as for the per-fix test (scalar check: B = 2, y = (1, 1), S = (1,
+    1): 4 / 2 = 2; y = (1, -1): 0)."""
     return normalised_error_squared(y_sum, S_sum)
 
 
