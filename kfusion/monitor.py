@@ -320,7 +320,7 @@ def block_nis(y_sum: ArrayLike, S_sum: ArrayLike) -> float:
     persist over several fixes (an IMU sample held over four fixes when its stream slows
     down, a drift) correlate the innovations: each fix's NIS can stay near 3 while the sum
     grows like B instead of sqrt(B), and the block NIS grows with it (with correlations
-    rho_k at lag k, its mean is ``3 (1 + 2 sum_k (1 - k / B) rho_k)``: 6.1 x 3 for AR(1),
+    rho_k at lag k, its mean is ``3 (1 + 2 sum_k (1 - k / B) rho_k)``: 4.8 x 3 for AR(1),
     rho = 0.8, B = 8). The fused position averages recent fixes, so it is then worse than P+
     says by about the same factor; :meth:`ConsistencyMonitor.at_fix` widens it by the
     window's ``mean / 3`` as for the per-fix test (scalar check: B = 2, y = (1, 1), S = (1,

@@ -98,7 +98,7 @@ def test_white_and_correlated_random_innovations():
     """Gaussian innovations of covariance S: white ones pass the block test, ones with lag-1
     correlation 0.8 (AR(1), the same marginal covariance: each fix's NIS still averages 3)
     fail it, with a factor near ``(1 + rho) / (1 - rho)`` = 9 for long blocks (less for 8
-    fixes: 1 + 2 sum_k (1 - k/8) rho^k = 6.1)."""
+    fixes: 1 + 2 sum_k (1 - k/8) rho^k = 4.8)."""
     rng = np.random.default_rng(7)
     s2 = (0.2e-3) ** 2
     S = s2 * np.eye(3)
