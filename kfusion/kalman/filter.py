@@ -109,6 +109,7 @@ from kfusion.kalman.markers import (
     marker_nis,
     marker_noise,
     marker_pose,
+    pooled_innovation,
     stacked_measurement,
 )
 from kfusion.kalman.orientation import (
@@ -183,10 +184,11 @@ class UpdateOutcome:
             when 3 or more fitted (Kabsch), else None: the fix a rigid-body consumer (the
             consistency monitor) compares with.
         y, S: the innovation ``y = z - c - H x-`` (3,) m and its covariance ``S = H P- H^T +
-            R`` (3, 3) m^2 of a rigid-body fix compared with the prediction (accepted,
-            reacquired; before any re-acquisition inflation), else None: the consistency
-            monitor's block test (:func:`kfusion.monitor.block_nis`) sums them. Not compared
-            by ``==`` (the engines agree to rounding, not bit for bit).
+            R`` (3, 3) m^2 of a fix fused into the prediction (accepted, reacquired; before
+            any re-acquisition inflation; for marker-level fusion the stacked innovation's
+            position part, :func:`kfusion.kalman.markers.pooled_innovation`), else None: the
+            consistency monitor's block test (:func:`kfusion.monitor.block_nis`) sums them.
+            Not compared by ``==`` (the engines agree to rounding, not bit for bit).
     """
 
     t: float
@@ -994,7 +996,8 @@ class KalmanFusion:
         H_used, R_used = H_all[rows], R_all[np.ix_(rows, rows)]
         y = innovations[keep].ravel()
         used = int(keep.sum())
-        nis = model.normalised_innovation_squared(y, H_used @ P @ H_used.T + R_used) / used
+        S_used = H_used @ P @ H_used.T + R_used
+        nis = model.normalised_innovation_squared(y, S_used) / used
         self._last_nis = nis
         kind = ACCEPTED
         if since >= self.params.reacquire_after_s:
@@ -1017,8 +1020,10 @@ class KalmanFusion:
         self._counters["markers_used"] += used
         if kind == REACQUIRED:
             self._counters["reacquired"] += 1
+        # the stacked innovation's position part: what the monitor's block test sums
+        y_origin, S_origin = pooled_innovation(y, S_used) if math.isfinite(nis) else (None, None)
         return UpdateOutcome(t, kind, nis, markers_used=used, markers_gated=rejected,
-                             marker_origin=origin)
+                             marker_origin=origin, y=y_origin, S=S_origin)
 
     def _inflate_for_reacquisition(self, innovation: NDArray[np.float64], since: float
                                    ) -> None:

@@ -219,6 +219,32 @@ def marker_nis(y: ArrayLike, S: ArrayLike) -> float:
     return nis if np.isfinite(nis) else float("inf")
 
 
+def pooled_innovation(y: ArrayLike, S: ArrayLike) -> tuple[NDArray[np.float64],
+                                                            NDArray[np.float64]]:
+    """The position part of k markers' stacked innovation: (y_o (3,) m, S_o (3, 3) m^2), for
+    the stacked innovation y (3k,) m and its covariance S (3k, 3k) m^2.
+
+    Each marker's predicted point moves one for one with the body's position (``G`` = k
+    stacked 3x3 identities), so the generalised least-squares position offset that explains
+    the innovations, and its covariance, are::
+
+        S_o = (G^T S^-1 G)^-1,   y_o = S_o G^T S^-1 y
+
+    and ``y_o ~ N(0, S_o)`` exactly when ``y ~ N(0, S)``: a 3-vector that the consistency
+    monitor's block test (:func:`kfusion.monitor.block_nis`) can sum across frames whose
+    marker sets differ. One marker: y and S themselves; k markers with S = diag(R, ..., R):
+    their mean and R / k."""
+    innovation = np.asarray(y, dtype=float)
+    covariance = np.asarray(S, dtype=float)
+    k = len(innovation) // 3
+    G = np.tile(np.eye(3), (k, 1))
+    weighted = np.linalg.solve(covariance, np.column_stack([G, innovation]))  # S^-1 [G y]
+    information = G.T @ weighted[:, :3]
+    S_o = np.linalg.inv(information)
+    y_o = S_o @ (G.T @ weighted[:, 3])
+    return y_o, 0.5 * (S_o + S_o.T)
+
+
 def marker_pose(points: ArrayLike, body_positions: ArrayLike, max_residual: float | None = None
                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """The rigid-body pose ``(p (3,) m, q_global_body (4,) [w, x, y, z], w >= 0)`` from visible
