@@ -293,6 +293,18 @@ def mean_beyond_limit(nis: Sequence[float] | NDArray[np.float64], probability: f
     return samples > 0 and math.fsum(nis) / samples > nis_interval(samples, probability)[1]
 
 
+def failing_high(nis: Sequence[float], probability: float, on: bool) -> bool:
+    """A windowed NIS test with hysteresis: True from when the window's mean fails high
+    (:func:`mean_beyond_limit`) until it is back to 3, the mean of a consistent filter's NIS
+    (``on``: the state before this window; an empty window keeps it). Switching off at the
+    limit itself made a window near it flicker on and off."""
+    if mean_beyond_limit(nis, probability):
+        return True
+    if len(nis) and math.fsum(nis) / len(nis) <= 3.0:
+        return False
+    return on
+
+
 def step_offset_variance(noise_variance: float, params: MonitorParameters) -> float:
     """Per-axis variance (m^2) of the largest offset a fix can carry below the step rule,
     as an edge-offset sigma^2: a fix offset by d fused with an NIS beyond
@@ -1323,8 +1335,8 @@ class ConsistencyMonitor:
     def _add_to_block(self, t: float, outcome: UpdateOutcome) -> None:
         """Add an accepted fix's innovation at t (s) to the running block (:func:`block_nis`);
         a fix that ends a gap (:func:`reacquired_after_gap`: its prediction spans the gap, and
-        the gap-end tests judge it) or carries no innovation (marker-level fusion) starts the
-        next block instead. A full block's NIS joins the window."""
+        the gap-end tests judge it) or carries no innovation (not compared with a prediction)
+        starts the next block instead. A full block's NIS joins the window."""
         y, S = outcome.y, outcome.S
         if y is None or S is None or self._last_fix is None or reacquired_after_gap(
                 t - self._last_fix[0], self.params.settle_after_s):
@@ -1341,10 +1353,7 @@ class ConsistencyMonitor:
                 return  # a non-finite innovation: the block is dropped
             blocks = self._block_nis
             blocks.append(value)
-            if mean_beyond_limit(blocks, self.params.nis_probability):
-                self._block_on = True
-            elif math.fsum(blocks) / len(blocks) <= 3.0:
-                self._block_on = False  # (hysteresis: a window at the limit flickered)
+            self._block_on = failing_high(blocks, self.params.nis_probability, self._block_on)
 
     def _settle(self, t: float, factor: float) -> None:
         """Fixes up to ``settle_s`` after t (s) get at least ``factor`` (and 2), or the factor
@@ -1390,10 +1399,8 @@ class ConsistencyMonitor:
         self._gap_end_nis.append(normalised_error_squared(innovation, covariance))
         self._gap_end_edge.append(edge_variance_needed(innovation, covariance, shape,
                                                        self.params.confidence))
-        if mean_beyond_limit(self._gap_end_nis, self.params.nis_probability):
-            self._edge_on = True
-        elif math.fsum(self._gap_end_nis) / len(self._gap_end_nis) <= 3.0:
-            self._edge_on = False
+        self._edge_on = failing_high(self._gap_end_nis, self.params.nis_probability,
+                                     self._edge_on)
         self._edge_value = None
         self._forget_derived(nis=False)  # the scale table reads _gap_end_scale
 

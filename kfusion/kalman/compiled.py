@@ -1414,7 +1414,8 @@ class KernelRun:
                  output_matrix: NDArray[np.float64], output_offset: NDArray[np.float64],
                  outcome: NDArray[np.str_], nis: NDArray[np.float64],
                  dead_reckoned: NDArray[np.bool_], counters: dict[str, int],
-                 failed_event: int) -> None:
+                 failed_event: int, y: NDArray[np.float64] | None = None,
+                 S: NDArray[np.float64] | None = None) -> None:
         self.x = x
         self.P = P
         self.output_matrix = output_matrix
@@ -1425,9 +1426,9 @@ class KernelRun:
         self.counters = counters
         self.failed_event = failed_event
         # per row, the innovation y (m, 3) m and its S (m, 3, 3) m^2 where the row's fix was
-        # fused into a prediction, NaN elsewhere (UpdateOutcome.y, .S; run_kernel fills them)
-        self.y = np.full((len(nis), 3), np.nan)
-        self.S = np.full((len(nis), 3, 3), np.nan)
+        # fused into a prediction, NaN elsewhere (UpdateOutcome.y, .S; run_kernel's)
+        self.y = np.full((len(nis), 3), np.nan) if y is None else y
+        self.S = np.full((len(nis), 3, 3), np.nan) if S is None else S
         # smoother support (run_kernel(smoothing=True)): the kernel inputs, configuration,
         # first state and the states saved every SAVE_EVERY rows, for smooth_in_place
         self.replay: Replay | None = None
@@ -1516,9 +1517,7 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
         np.zeros((0, size)), no_rows, no_rows, save_every, saved_states, saved_events)
     run = KernelRun(out_x, out_P, out_H, out_offset, _OUTCOME_LOOKUP[out_outcome], out_nis,
                     out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(), strict=True)),
-                    int(failed))
-    run.y = out_y
-    run.S = out_S
+                    int(failed), out_y, out_S)
     if save_every > 0:
         run.replay = Replay(inputs, config, first_state, saved_states)
         run.replay.saved_events = saved_events
