@@ -60,6 +60,20 @@ BRIDGED: Final = "bridged"
 LOST: Final = "lost"
 STATUSES: Final = (TRACKED, BRIDGED, LOST)
 
+# what the Kalman filter's update did with a mocap frame (kfusion.kalman.filter.UpdateOutcome)
+ACCEPTED: Final = "accepted"
+"""The fix passed the gate and was fused."""
+OCCLUDED: Final = "occluded"
+"""No usable position (None or NaN): nothing fused."""
+GATED: Final = "gated"
+"""The fix failed the chi-square gate (marker swap, jump): rejected, counted."""
+REACQUIRED: Final = "reacquired"
+"""Fix fused at least ``reacquire_after_s`` after the last accepted one (passing the gate, or
+after the state was lost, ``max_bridge_s``, when it re-initialises the position)."""
+INITIALISED: Final = "initialised"
+"""First fix ever: the state was initialised from it."""
+USED_OUTCOMES: Final = (ACCEPTED, REACQUIRED, INITIALISED)
+
 MAX_BRIDGE_LIMIT_S: Final = 60.0
 """Largest ``max_bridge_s`` (s) any method accepts. Dead reckoning a limb from a consumer IMU
 drifts by metres within tens of seconds, and kfusion targets 0.1-1 s occlusions; a larger value

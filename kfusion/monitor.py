@@ -122,6 +122,7 @@ is pessimistic there); the test fired on trials 21, 24 and 28, 1-3 times each fo
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from collections.abc import Sequence
@@ -131,6 +132,8 @@ from typing import TYPE_CHECKING, Final
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from kfusion.conventions import ACCEPTED, GATED, REACQUIRED, USED_OUTCOMES
 
 if TYPE_CHECKING:
     from kfusion.kalman.filter import FilterEstimate, KalmanFusion, KalmanSnapshot, UpdateOutcome
@@ -164,13 +167,57 @@ def chi2_quantile(probability: float, dof: int) -> float:
 
 def normalised_error_squared(error: ArrayLike, covariance: ArrayLike) -> float:
     """``d^2 = e^T P^-1 e`` for an error e (3,) m and covariance P (3, 3) m^2; inf when P is
-    singular or not finite."""
-    e = np.asarray(error, dtype=float)
-    P = np.asarray(covariance, dtype=float)
-    if not (np.isfinite(P).all() and np.isfinite(e).all()):
+    singular or not finite. ``P x = e`` is solved by Gaussian elimination with partial
+    pivoting (LAPACK's ``gesv``, the algorithm of :func:`normalised_errors_squared`) in Python
+    floats: about 5 us, where a LAPACK call from Python costs 15-20 us, and the monitor asks
+    for one at every block of fixes and every gap's end."""
+    e = np.asarray(error, dtype=float).tolist()
+    a = np.asarray(covariance, dtype=float).tolist()
+    if not all(map(math.isfinite, e + a[0] + a[1] + a[2])):
         return math.inf
+    b = list(e)
+    for column in range(3):
+        pivot = max(range(column, 3), key=lambda row: abs(a[row][column]))
+        if a[pivot][column] == 0.0:
+            return math.inf  # singular
+        a[column], a[pivot] = a[pivot], a[column]
+        b[column], b[pivot] = b[pivot], b[column]
+        for row in range(column + 1, 3):
+            multiplier = a[row][column] / a[column][column]
+            for entry in range(column, 3):
+                a[row][entry] -= multiplier * a[column][entry]
+            b[row] -= multiplier * b[column]
+    x = [0.0, 0.0, 0.0]
+    for row in (2, 1, 0):
+        x[row] = (b[row] - sum(a[row][entry] * x[entry] for entry in range(row + 1, 3))) \
+            / a[row][row]
+    value = e[0] * x[0] + e[1] * x[1] + e[2] * x[2]
+    return value if math.isfinite(value) else math.inf
+
+
+def normalised_errors_squared(errors: NDArray[np.float64], covariances: NDArray[np.float64]
+                              ) -> NDArray[np.float64]:
+    """(k,) ``d^2 = e^T P^-1 e`` of k stacked errors e (k, 3) m with covariances P (k, 3, 3)
+    m^2 (solved with LAPACK's pivoted LU, ``np.linalg.solve``); inf where P is singular or
+    not finite."""
+    result = np.full(len(errors), math.inf)
+    finite = np.isfinite(covariances).all(axis=(1, 2)) & np.isfinite(errors).all(axis=1)
+    if not finite.any():
+        return result
+    e, P = errors[finite], covariances[finite]
     try:
-        return float(e @ np.linalg.solve(P, e))
+        solved = np.linalg.solve(P, e[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:  # a singular one among them: each on its own
+        result[finite] = [_solved_or_inf(*pair) for pair in zip(e, P, strict=True)]
+        return result
+    result[finite] = np.einsum("ki,ki->k", e, solved)
+    return result
+
+
+def _solved_or_inf(error: NDArray[np.float64], covariance: NDArray[np.float64]) -> float:
+    """``e^T P^-1 e`` of one finite error (3,) and covariance (3, 3); inf when P is singular."""
+    try:
+        return float(np.einsum("i,i->", error, np.linalg.solve(covariance, error)))
     except np.linalg.LinAlgError:
         return math.inf
 
@@ -183,21 +230,34 @@ def required_scale(error: ArrayLike, covariance: ArrayLike, confidence: float = 
 
         s = max(d^2 / F^-1_chi2(3)(c), max_i e_i^2 / (sigmas^2 P_ii))
 
-    inf when P is singular or not finite."""
-    e = np.asarray(error, dtype=float)
-    P = np.asarray(covariance, dtype=float)
-    d2 = normalised_error_squared(e, P)
-    variances = np.diag(P)
-    if not (math.isfinite(d2) and (variances > 0).all()):
-        return math.inf
-    per_axis = float(np.max(e * e / variances)) / (sigmas * sigmas)
-    return max(d2 / chi2_quantile(confidence, 3), per_axis)
+    inf when P is singular or not finite. (:func:`required_scales` for k rows stacked.)"""
+    return float(required_scales(np.asarray(error, dtype=float)[None],
+                                 np.asarray(covariance, dtype=float)[None], confidence,
+                                 sigmas)[0])
 
 
-def shadow_row_scales(error: ArrayLike, covariance: ArrayLike, noise_variance: float,
-                      confidence: float = 0.99, sigmas: float = 3.0) -> tuple[float, float]:
+def required_scales(errors: NDArray[np.float64], covariances: NDArray[np.float64],
+                    confidence: float = 0.99, sigmas: float = 3.0) -> NDArray[np.float64]:
+    """(k,) :func:`required_scale` of k stacked errors (k, 3) m and covariances (k, 3, 3)
+    m^2."""
+    d2 = normalised_errors_squared(errors, covariances)
+    variances = np.diagonal(covariances, axis1=1, axis2=2)
+    result = np.full(len(errors), math.inf)
+    valid = np.isfinite(d2) & (variances > 0).all(axis=1)
+    if valid.any():
+        e, v = errors[valid], variances[valid]
+        per_axis = np.max(e * e / v, axis=1) / (sigmas * sigmas)
+        result[valid] = np.maximum(d2[valid] / chi2_quantile(confidence, 3), per_axis)
+    return result
+
+
+def shadow_row_scales(error: ArrayLike, covariance: ArrayLike, noise_variance: ArrayLike,
+                      confidence: float = 0.99, sigmas: float = 3.0
+                      ) -> tuple[float, float]:
     """(innovation scale, prediction scale) of a shadow-gap row: an innovation e (3,) m = fix -
     prediction, the prediction's covariance P (3, 3) m^2 and the fix's noise ``r I`` (m^2).
+    Floats for one row; for k rows stacked (e (k, 3), P (k, 3, 3), r a float or (k,)), two
+    (k,) arrays (:func:`shadow_rows_scales`).
 
     * The innovation scale is ``required_scale(e, P + r I)``: how far the whole innovation
       covariance S was off. It measures how wrong the model is (the refusal rule reads it).
@@ -218,11 +278,35 @@ def shadow_row_scales(error: ArrayLike, covariance: ArrayLike, noise_variance: f
     ``u = V^T e``): g is convex and decreasing, so from a point with ``g > 0`` the iterates
     rise to the root without passing it. inf when P is singular or not finite, or when no
     finite s holds e."""
-    e = np.asarray(error, dtype=float)
-    P = np.asarray(covariance, dtype=float)
-    whole = required_scale(e, P + noise_variance * np.eye(3), confidence, sigmas)
-    if not (math.isfinite(whole) and whole > 1.0):
-        return whole, whole
+    innovation, prediction = shadow_rows_scales(
+        np.asarray(error, dtype=float)[None], np.asarray(covariance, dtype=float)[None],
+        np.asarray(noise_variance, dtype=float).reshape(1), confidence, sigmas)
+    return float(innovation[0]), float(prediction[0])
+
+
+def shadow_rows_scales(errors: NDArray[np.float64], covariances: NDArray[np.float64],
+                       noise_variances: ArrayLike, confidence: float = 0.99,
+                       sigmas: float = 3.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(innovation scales (k,), prediction scales (k,)) of k shadow-gap rows stacked: errors
+    (k, 3) m, the predictions' covariances (k, 3, 3) m^2, the fixes' noise variances r (k,) or
+    one float, m^2 (:func:`shadow_row_scales`, whose docstring gives the rule). The monitor
+    computes a shadow gap's rows at once when it closes."""
+    count = len(errors)
+    noise = np.broadcast_to(np.asarray(noise_variances, dtype=float), (count,))
+    whole = required_scales(errors, covariances + noise[:, None, None] * np.eye(3), confidence,
+                            sigmas)
+    prediction = whole.copy()
+    for row in np.flatnonzero(np.isfinite(whole) & (whole > 1.0)).tolist():
+        prediction[row] = _prediction_scale(errors[row], covariances[row], float(noise[row]),
+                                            float(whole[row]), confidence, sigmas)
+    return whole, prediction
+
+
+def _prediction_scale(e: NDArray[np.float64], P: NDArray[np.float64], noise_variance: float,
+                      whole: float, confidence: float, sigmas: float) -> float:
+    """The prediction scale of one row whose innovation scale ``whole`` exceeds 1: Newton's
+    method from ``whole`` on the ellipsoid condition, and the per-axis condition
+    (:func:`shadow_row_scales`)."""
     eigenvalues, vectors = np.linalg.eigh(0.5 * (P + P.T))
     u2 = (vectors.T @ e) ** 2
     limit = chi2_quantile(confidence, 3)
@@ -234,13 +318,13 @@ def shadow_row_scales(error: ArrayLike, covariance: ArrayLike, noise_variance: f
         if excess <= 0.0:
             break
         if not slope < 0.0:
-            return whole, math.inf
+            return math.inf
         step = -excess / slope
         scale += step
         if step <= 1e-12 * scale:
             break
     per_axis = float(np.max((e * e / (sigmas * sigmas) - noise_variance) / np.diag(P)))
-    return whole, max(scale, per_axis)
+    return max(scale, per_axis)
 
 
 @dataclass(frozen=True)
@@ -270,11 +354,12 @@ def windowed_nis_test(nis: ArrayLike, probability: float = 0.999, dof: int = 3) 
     n = len(values)
     if n == 0:
         return NisTest(math.nan, 0.0, math.inf, True, 0)
-    mean = float(values.mean())
+    mean = math.fsum(values.tolist()) / n  # correctly rounded, as the monitor's running window
     lower, upper = nis_interval(n, probability, dof)
     return NisTest(mean, lower, upper, lower <= mean <= upper, n)
 
 
+@lru_cache(maxsize=1024)
 def nis_interval(samples: int, probability: float = 0.999, dof: int = 3) -> tuple[float, float]:
     """(lower, upper): the interval the mean of ``samples`` NIS values of ``dof`` each lies in
     with ``probability`` under a consistent filter,
@@ -345,22 +430,45 @@ def nis_matching_scale(nis: ArrayLike, dof: int = 3) -> float:
     the innovation covariance is too small (> 1) or too large (< 1)."""
     values = np.asarray(nis, dtype=float)
     values = values[np.isfinite(values)]
-    return float(values.mean() / dof) if len(values) else 1.0
+    return math.fsum(values.tolist()) / len(values) / dof if len(values) else 1.0
 
 
 def quantile_matching_scale(required: ArrayLike, confidence: float = 0.99) -> float:
     """Covariance matching at a quantile: the variance scale ``quantile_c(s_k)`` of the scales
     each error needed (:func:`required_scale`), so that the scaled bound holds the observed
-    errors at the rate c. NaN for no samples; inf when more than ``1 - c`` of them are inf."""
-    values = np.asarray(required, dtype=float)
-    values = values[~np.isnan(values)]
-    if len(values) == 0:
+    errors at the rate c. NaN for no samples; inf when more than ``1 - c`` of them are inf.
+    The quantile is ``np.quantile``'s default (:func:`linear_quantile`)."""
+    values = [value for value in np.asarray(required, dtype=float).tolist()
+              if not math.isnan(value)]
+    if not values:
         return math.nan
-    if np.isinf(values).any():
-        if np.mean(np.isinf(values)) > 1.0 - confidence:
+    unbounded = sum(1 for value in values if math.isinf(value))
+    if unbounded:
+        if unbounded / len(values) > 1.0 - confidence:
             return math.inf
-        values = values[np.isfinite(values)]
-    return float(np.quantile(values, confidence))
+        values = [value for value in values if math.isfinite(value)]
+    return linear_quantile(sorted(values), confidence)
+
+
+def linear_quantile(ordered: Sequence[float], quantile: float) -> float:
+    """The ``quantile`` of the sorted, finite, non-empty ``ordered`` by linear interpolation
+    between order statistics, ``np.quantile``'s default (Hyndman and Fan's 7th method), to the
+    bit: with ``v = (n - 1) q``, ``i = floor(v)``, ``g = v - i`` and ``d = x[i+1] - x[i]``, the
+    value ``x[i] + d g`` for ``g < 1/2`` and ``x[i+1] - d (1 - g)`` otherwise (numpy's
+    ``_lerp``); ``x[n-1]`` for ``v >= n - 1``. In Python floats: the monitor takes one per
+    horizon bin whenever a shadow gap closes, where ``np.quantile``'s overhead (about 50 us a
+    call) was a tenth of a monitored run."""
+    count = len(ordered)
+    virtual = (count - 1) * quantile
+    if virtual >= count - 1:
+        return float(ordered[-1])
+    if virtual < 0:
+        return float(ordered[0])
+    previous = math.floor(virtual)
+    gamma = virtual - previous
+    low, high = float(ordered[previous]), float(ordered[previous + 1])
+    difference = high - low
+    return high - difference * (1 - gamma) if gamma >= 0.5 else low + difference * gamma
 
 
 def rows_to_shrink(quantile: float) -> int:
@@ -398,10 +506,43 @@ def fix_covariance_under_scale(covariance: ArrayLike, noise_variance: float, sca
     P = np.asarray(covariance, dtype=float)
     if not scale > 1.0:
         return P
-    if not math.isfinite(scale):
-        return np.full((3, 3), math.inf)
-    correction = P - P @ P / noise_variance
-    return P + (scale - 1.0) * positive_part(0.5 * (correction + correction.T))
+    return fix_covariances_widened(P[None], noise_variance, np.array([scale]),
+                                   np.ones(1))[0]
+
+
+def fix_covariances_widened(covariances: NDArray[np.float64], noise_variance: float,
+                            scales: NDArray[np.float64], factors: NDArray[np.float64]
+                            ) -> NDArray[np.float64]:
+    """k fused fixes' covariances P+ (k, 3, 3) m^2 widened by both of the monitor's findings
+    (:meth:`ConsistencyMonitor.at_fix`): the shadow gaps' ``scales`` (k,) of the predictions
+    (:func:`fix_covariance_under_scale`) and the innovations' ``factors`` (k,)
+    (:func:`fix_covariance_under_innovation_factor`), each applied where above 1::
+
+        P_fix = P+ + (s - 1) [P+ - P+ R^-1 P+]_+ + (k - 1) [R - P+]_+
+
+    (``[.]_+``: :func:`positive_part` of the symmetric part, ``R = noise_variance I``). Element
+    by element (the 3x3 product written out, no BLAS call), so each row has the same bits
+    whether computed alone, as the Tracker does at a fix, or stacked, as the batch filter does
+    for a recording's fixes at once. inf rows where a scale or factor is infinite."""
+    P = np.asarray(covariances, dtype=float)
+    scales = np.asarray(scales, dtype=float)
+    factors = np.asarray(factors, dtype=float)
+    widened = P.copy()
+    scaled = (scales > 1.0) & (scales < math.inf)
+    if scaled.any():
+        Q = P[scaled]
+        product = (Q[:, :, 0, None] * Q[:, None, 0, :] + Q[:, :, 1, None] * Q[:, None, 1, :]) \
+            + Q[:, :, 2, None] * Q[:, None, 2, :]  # P+ P+, the 3x3 product written out
+        correction = Q - product / noise_variance
+        widened[scaled] += (scales[scaled] - 1.0)[:, None, None] * positive_parts(
+            0.5 * (correction + correction.transpose(0, 2, 1)))
+    factored = (factors > 1.0) & (factors < math.inf)
+    if factored.any():
+        Q = P[factored]
+        excess = noise_variance * np.eye(3) - 0.5 * (Q + Q.transpose(0, 2, 1))
+        widened[factored] += (factors[factored] - 1.0)[:, None, None] * positive_parts(excess)
+    widened[(scales == math.inf) | (factors == math.inf)] = math.inf
+    return widened
 
 
 def positive_part(matrix: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -414,6 +555,26 @@ def positive_part(matrix: NDArray[np.float64]) -> NDArray[np.float64]:
     if values.min() < 0.0:
         return (vectors * np.maximum(values, 0.0)) @ vectors.T
     return matrix
+
+
+def positive_parts(matrices: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:func:`positive_part` of each of k symmetric matrices (k, 3, 3): those
+    :func:`clearly_positive_definite` shows positive definite (the test's comparisons element
+    by element) as they are, the others one by one."""
+    m = matrices
+    diagonal = np.diagonal(m, axis1=1, axis2=2)
+    absolute = np.abs(m)
+    largest = absolute.reshape(len(m), 9).max(axis=1)
+    lowest = np.minimum(np.minimum(diagonal[:, 0] - absolute[:, 0, 1] - absolute[:, 0, 2],
+                                   diagonal[:, 1] - absolute[:, 1, 0] - absolute[:, 1, 2]),
+                        diagonal[:, 2] - absolute[:, 2, 0] - absolute[:, 2, 1])
+    clear = np.isfinite(m).all(axis=(1, 2)) & (lowest > 1e-8 * largest)
+    if clear.all():
+        return m
+    result = m.copy()
+    for row in np.flatnonzero(~clear).tolist():
+        result[row] = positive_part(m[row])
+    return result
 
 
 def clearly_positive_definite(matrix: NDArray[np.float64], margin: float = 1e-8) -> bool:
@@ -680,9 +841,8 @@ def fix_covariance_under_innovation_factor(covariance: ArrayLike, noise_variance
     P = np.asarray(covariance, dtype=float)
     if not factor > 1.0:
         return P
-    if not math.isfinite(factor):
-        return np.full((3, 3), math.inf)
-    return P + (factor - 1.0) * positive_part(noise_variance * np.eye(3) - 0.5 * (P + P.T))
+    return fix_covariances_widened(P[None], noise_variance, np.ones(1),
+                                   np.array([factor]))[0]
 
 
 def innovation_from_posterior(fix: ArrayLike, position: ArrayLike, covariance: ArrayLike,
@@ -1018,14 +1178,20 @@ class HorizonScales:
     """Per-bin memory of the scales the rows of the last gaps needed, and the matched scales.
 
     Shared by the online monitor (shadow gaps of the filter) and the smoother's offline
-    hold-out (:func:`kfusion.kalman.smoother.run_smoother`)."""
+    hold-out (:func:`kfusion.kalman.smoother.run_smoother`). Besides each bin's rows in arrival
+    order (the last ``memory``), it keeps their finite values sorted and counts the infinite
+    ones, so that a bin's matched scale (:func:`quantile_matching_scale` of its rows) is read
+    without sorting the rows again: a monitored run matches the scales after every shadow gap."""
 
     def __init__(self, params: MonitorParameters) -> None:
         self.params = params
         bins = len(params.horizon_edges_s)
         self._rows: list[deque[float]] = [deque(maxlen=params.memory) for _ in range(bins)]
+        self._sorted: list[list[float]] = [[] for _ in range(bins)]  # each bin's finite rows
+        self._unbounded = [0] * bins  # each bin's infinite rows
         self.gaps = 0
         self._table: NDArray[np.float64] | None = None  # cache of scale_table()
+        self._largest = math.nan  # its largest entry, with it
 
     def add_gap(self, horizons_s: ArrayLike, required: ArrayLike) -> None:
         """One gap's rows: horizon (k,) s and the scale each row needed (k,)."""
@@ -1034,9 +1200,26 @@ class HorizonScales:
         if len(horizons) == 0:
             return
         for horizon, value in zip(horizons.tolist(), values.tolist(), strict=True):
-            self._rows[horizon_bin(horizon, self.params.horizon_edges_s)].append(value)
+            index = horizon_bin(horizon, self.params.horizon_edges_s)
+            rows = self._rows[index]
+            if len(rows) == rows.maxlen:  # the oldest row leaves the memory
+                self._forget(index, rows[0])
+            rows.append(value)
+            if math.isinf(value):
+                self._unbounded[index] += 1
+            elif not math.isnan(value):
+                bisect.insort(self._sorted[index], value)
         self.gaps += 1
         self._table = None
+
+    def _forget(self, index: int, value: float) -> None:
+        """Drop ``value``, a row of bin ``index`` leaving the memory, from its sorted rows or
+        its count of infinite ones."""
+        if math.isinf(value):
+            self._unbounded[index] -= 1
+        elif not math.isnan(value):
+            ordered = self._sorted[index]
+            del ordered[bisect.bisect_left(ordered, value)]
 
     def copy(self) -> HorizonScales:
         """An independent copy (the rows are floats). The scale table is computed first and
@@ -1044,14 +1227,27 @@ class HorizonScales:
         other = HorizonScales.__new__(HorizonScales)
         other.params = self.params
         other._rows = [deque(rows, maxlen=rows.maxlen) for rows in self._rows]
+        other._sorted = [list(rows) for rows in self._sorted]
+        other._unbounded = list(self._unbounded)
         other.gaps = self.gaps
         other._table = self.scale_table()
+        other._largest = self._largest
         return other
 
     def variance_scales(self) -> tuple[float, ...]:
-        """Matched variance scale per bin (NaN where the bin has no evidence), before limits."""
-        return tuple(quantile_matching_scale(list(rows), self.params.matching_quantile)
-                     for rows in self._rows)
+        """Matched variance scale per bin (NaN where the bin has no evidence), before limits:
+        :func:`quantile_matching_scale` of each bin's rows, read from its sorted rows."""
+        confidence = self.params.matching_quantile
+        scales = []
+        for ordered, unbounded in zip(self._sorted, self._unbounded, strict=True):
+            count = len(ordered) + unbounded
+            if count == 0:
+                scales.append(math.nan)
+            elif unbounded and unbounded / count > 1.0 - confidence:
+                scales.append(math.inf)
+            else:
+                scales.append(linear_quantile(ordered, confidence))
+        return tuple(scales)
 
     def scale_table(self) -> NDArray[np.float64]:
         """(bins,) variance scale applied per bin: the matched scale, at least ``minimum_scale``
@@ -1072,7 +1268,13 @@ class HorizonScales:
             previous = max(previous, value)
         self._table = np.asarray(table, dtype=float)
         self._table.flags.writeable = False
+        self._largest = max(table)
         return self._table
+
+    def largest_scale(self) -> float:
+        """The largest scale of :meth:`scale_table` (its entries are never NaN)."""
+        self.scale_table()
+        return self._largest
 
     def scale_at(self, horizons_s: ArrayLike) -> NDArray[np.float64]:
         """Variance scale at each horizon (s)."""
@@ -1124,12 +1326,15 @@ class ConsistencyMonitor:
         self._scale_table_value: NDArray[np.float64] | None = None  # scale_table(), read-only
         self._std_scale_value: float | None = None  # _std_scale()
         self._bridging_value: bool | None = None  # bridging_allowed
+        self._widening_value: tuple[float, float] | None = None  # _fix_widening() at the fix
         self._start: float | None = None  # time of the running shadow gap's last fix
         self._next_start = -math.inf
+        # the running shadow gap's rows: horizon s, error (3,) m, the shadow's covariance (3, 3)
+        # m^2 and the fix's noise variance m^2 (their scales are computed when it closes)
         self._rows_h: list[float] = []
-        self._rows_scale: list[float] = []
-        self._rows_innovation_scale: list[float] = []
         self._rows_error: list[NDArray[np.float64]] = []
+        self._rows_covariance: list[NDArray[np.float64]] = []
+        self._rows_noise: list[float] = []
         self._rows_velocity: list[NDArray[np.float64]] = []  # shadow velocity change, m/s
         self._start_velocity = np.zeros(3)  # the shadow's velocity at the gap's fix, m/s
         # the last gaps' gap_clock_evidence (a tuple: shared, not copied, by snapshots)
@@ -1189,29 +1394,29 @@ class ConsistencyMonitor:
         """A mocap frame at t (s) after the main filter (``fusion``) processed it with
         ``outcome``; ``position`` (3,) m or None when occluded; ``prior``: the filter's
         estimate at t before this frame (needed only when :meth:`wants_prior`)."""
-        from kfusion.kalman.filter import ACCEPTED, GATED, REACQUIRED, USED_OUTCOMES
-
-        if outcome.kind in (ACCEPTED, REACQUIRED) and math.isfinite(outcome.nis) \
+        self._widening_value = None  # the state changes from here
+        kind, nis, params = outcome.kind, outcome.nis, self.params
+        if kind in (ACCEPTED, REACQUIRED) and math.isfinite(nis) \
                 and not self.model_tested and self._informative(t, fusion):
             self._tested_fixes += 1  # compared with a tight prediction (model_tested)
             self._bridging_value = None
-        if outcome.kind == ACCEPTED and math.isfinite(outcome.nis):
+        if kind == ACCEPTED and math.isfinite(nis):
             self._add_to_block(t, outcome)
-            self._nis.append(outcome.nis)
+            self._nis.append(nis)
             self._forget_derived()
-            self._recent_nis.append(outcome.nis)  # snapshots copy it (_copy_state)
+            self._recent_nis.append(nis)  # snapshots copy it (_copy_state)
             recent = sum(self._recent_nis)
             dof = 3 * len(self._recent_nis)
-            if len(self._recent_nis) == self.params.recent_fixes and \
-                    recent > chi2_quantile(self.params.nis_probability, dof):
+            if len(self._recent_nis) == params.recent_fixes and \
+                    recent > chi2_quantile(params.nis_probability, dof):
                 self._settle(t, recent / dof)
-        if outcome.kind in USED_OUTCOMES and position is not None:
+        if kind in USED_OUTCOMES and position is not None:
             self._fix_horizon = math.inf if self._last_fix is None else t - self._last_fix[0]
-            if self._fix_horizon >= self.params.settle_after_s and \
-                    outcome.nis > chi2_quantile(self.params.confidence, 3):
-                self._settle(t, outcome.nis / 3.0)  # a gap's prediction was wrong
-            if reacquired_after_gap(self._fix_horizon, self.params.settle_after_s):
-                if outcome.kind == ACCEPTED and prior is not None:
+            if self._fix_horizon >= params.settle_after_s and \
+                    nis > chi2_quantile(params.confidence, 3):
+                self._settle(t, nis / 3.0)  # a gap's prediction was wrong
+            if reacquired_after_gap(self._fix_horizon, params.settle_after_s):
+                if kind == ACCEPTED and prior is not None:
                     self._gap_end(position, prior)
             elif math.isfinite(self._fix_horizon):
                 self._fix_period = self._fix_horizon
@@ -1221,41 +1426,38 @@ class ConsistencyMonitor:
                 # fused after gated fixes: the prediction it replaced stays a rival hypothesis
                 self._rival = (t, prior.position - np.asarray(position, dtype=float),
                                np.array(prior.position_covariance))
-            elif outcome.kind in (ACCEPTED, REACQUIRED) and prior is not None \
-                    and self.params.reacquisition_rival_s > 0 \
-                    and reacquired_after_gap(self._fix_horizon, self.params.settle_after_s):
+            elif kind in (ACCEPTED, REACQUIRED) and prior is not None \
+                    and params.reacquisition_rival_s > 0 \
+                    and reacquired_after_gap(self._fix_horizon, params.settle_after_s):
                 # (its prior is known: an exact rival, also where the NIS makes it a step, for
                 # which the posterior cannot give a loose prediction back)
                 step = outcome.markers_used == 0 and \
-                    outcome.nis > chi2_quantile(self.params.step_probability, 3)
+                    nis > chi2_quantile(params.step_probability, 3)
                 self._reacquisition_rival(t, position, prior, step)
             elif outcome.markers_used == 0 and \
-                    outcome.nis > chi2_quantile(self.params.step_probability, 3):
+                    nis > chi2_quantile(params.step_probability, 3):
                 self._step(t, position, fusion)
             self._gated_fix = None
-        elif outcome.kind == GATED and position is not None:
+        elif kind == GATED and position is not None:
             self._gated_fix = np.array(position, dtype=float)
         if self._start is not None:
             self._shadow.update(t, None, None)
             horizon = t - self._start
-            if outcome.kind == ACCEPTED and position is not None:
+            if kind == ACCEPTED and position is not None:
                 estimate = self._shadow.estimate()
                 error = np.asarray(position, dtype=float) - estimate.position
-                noise = self._mocap_noise_variance()
                 self._rows_h.append(horizon)
-                innovation_scale, scale = shadow_row_scales(
-                    error, estimate.position_covariance, noise, self.params.confidence)
-                self._rows_scale.append(scale)
-                self._rows_innovation_scale.append(innovation_scale)
                 self._rows_error.append(error)
+                self._rows_covariance.append(estimate.position_covariance)
+                self._rows_noise.append(self._mocap_noise_variance())
                 self._rows_velocity.append(estimate.velocity - self._start_velocity)
-            if horizon >= self.params.shadow_window_s or outcome.kind not in USED_OUTCOMES:
+            if horizon >= params.shadow_window_s or kind not in USED_OUTCOMES:
                 self._close()
-        if self._start is None and outcome.kind == ACCEPTED and t >= self._next_start:
+        if self._start is None and kind == ACCEPTED and t >= self._next_start:
             self._shadow.restore(fusion.snapshot())
             self._start_velocity = self._shadow.estimate().velocity
             self._start = t
-            self._next_start = t + self.params.shadow_period_s
+            self._next_start = t + params.shadow_period_s
 
     def _step(self, t: float, position: NDArray[np.float64], fusion: KalmanFusion) -> None:
         """A rigid-body fix at t (s), ``position`` (3,) m, fused with an NIS beyond its
@@ -1440,11 +1642,14 @@ class ConsistencyMonitor:
     def _close(self) -> None:
         """End the running shadow gap and keep its evidence."""
         if self._rows_h:
+            innovation_scales, scales = shadow_rows_scales(
+                np.array(self._rows_error), np.array(self._rows_covariance),
+                self._rows_noise, self.params.confidence)
             # a new HorizonScales, never the one a snapshot may share (_copy_state)
             self._scales = self._scales.copy()
-            self._scales.add_gap(self._rows_h, self._rows_scale)
+            self._scales.add_gap(self._rows_h, scales)
             self._innovation_scales = self._innovation_scales.copy()
-            self._innovation_scales.add_gap(self._rows_h, self._rows_innovation_scale)
+            self._innovation_scales.add_gap(self._rows_h, innovation_scales)
             self._forget_derived(nis=False)
             self._accelerations.append(fit_acceleration_error(self._rows_h,
                                                               np.array(self._rows_error)))
@@ -1453,8 +1658,8 @@ class ConsistencyMonitor:
                 self._clock_evidence = (self._clock_evidence + (clock,))[
                     -self.params.clock_gaps:]
         self._start = None
-        self._rows_h, self._rows_scale, self._rows_error = [], [], []
-        self._rows_innovation_scale = []
+        self._rows_h, self._rows_error, self._rows_covariance = [], [], []
+        self._rows_noise = []
         self._rows_velocity = []
 
     # -------------------------------------------------------------- results
@@ -1468,8 +1673,9 @@ class ConsistencyMonitor:
         """``table``'s (bins,) scale at ``horizon_s`` s (:func:`horizon_bin`), at least 1 beyond
         the last bin (:func:`scale_beyond_evidence`)."""
         edges = self.params.horizon_edges_s
-        return float(scale_beyond_evidence(table[horizon_bin(horizon_s, edges)], horizon_s,
-                                           edges))
+        scale = float(table[horizon_bin(horizon_s, edges)])
+        # scale_beyond_evidence in floats (NaN stays NaN, as np.maximum keeps it)
+        return 1.0 if horizon_s > edges[-1] and scale < 1.0 else scale
 
     def scale_table(self) -> NDArray[np.float64]:
         """(bins,) variance scale per horizon bin (:meth:`variance_scale` of each bin): the
@@ -1497,12 +1703,12 @@ class ConsistencyMonitor:
         if self._nis_window_value is None:
             # windowed_nis_test's mean and upper limit (mocap() keeps only finite NIS values,
             # so its finiteness filter has nothing to remove), nis_matching_scale's value
-            # from the same mean: float(values.mean() / 3)
+            # from the same mean (here the correctly rounded sum: math.fsum)
             samples = len(self._nis)
             if samples == 0:
                 self._nis_window_value = (1.0, 0.0)
             else:
-                mean = float(np.fromiter(self._nis, float, samples).mean())
+                mean = math.fsum(self._nis) / samples
                 upper = nis_interval(samples, self.params.nis_probability)[1]
                 self._nis_window_value = (mean / 3, max(mean / 3 if mean > upper else 0.0,
                                                         self._block_scale()))
@@ -1521,6 +1727,7 @@ class ConsistencyMonitor:
         change of them)."""
         if nis:
             self._nis_window_value = None
+        self._widening_value = None
         self._scale_table_value = self._std_scale_value = self._bridging_value = None
 
     def fix_only(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
@@ -1548,12 +1755,21 @@ class ConsistencyMonitor:
         scale, factor = self._fix_widening(t)
         if scale == 1.0 and factor == 1.0:
             return covariance
-        noise = self._shadow.params.mocap_position_noise ** 2
-        widened = fix_covariance_under_scale(covariance, noise, scale)
-        if factor > 1.0:
-            widened = widened + (fix_covariance_under_innovation_factor(covariance, noise, factor)
-                                 - covariance)
-        return widened
+        return fix_covariances_widened(np.asarray(covariance, dtype=float)[None],
+                                       self.fix_noise_variance, np.array([scale]),
+                                       np.array([factor]))[0]
+
+    @property
+    def fix_noise_variance(self) -> float:
+        """R = sigma_mocap^2 (m^2) of :meth:`at_fix`: the configured mocap noise, the gain's
+        own."""
+        return float(self._shadow.params.mocap_position_noise ** 2)
+
+    def fix_widening(self, t: float) -> tuple[float, float]:
+        """(scale, factor) that :meth:`at_fix` applies at t (s), each at least 1: the batch
+        filter keeps them per row and widens its fixes at once
+        (:func:`fix_covariances_widened`), with the bits of :meth:`at_fix`."""
+        return self._fix_widening(t)
 
     def fix_scale(self, t: float) -> float:
         """Greater than 1 exactly when :meth:`at_fix` widens the covariance at t (s): the
@@ -1570,11 +1786,13 @@ class ConsistencyMonitor:
         R)."""
         if self._last_fix is None or t != self._last_fix[0] or math.isinf(self._fix_horizon):
             return 1.0, 1.0
-        shadow = self._binned(self._scales.scale_table(), self._fix_horizon)
-        factor = max(1.0, self._nis_scale())
-        if t <= self._settle_until:
-            factor = max(factor, self._settle_factor)
-        return max(1.0, shadow), factor
+        if self._widening_value is None:  # at the last fix's time: kept until mocap()
+            shadow = self._binned(self._scales.scale_table(), self._fix_horizon)
+            factor = max(1.0, self._nis_scale())
+            if t <= self._settle_until:
+                factor = max(factor, self._settle_factor)
+            self._widening_value = (max(1.0, shadow), factor)
+        return self._widening_value
 
     def cover_rivals(self, t: float, position: NDArray[np.float64],
                      covariance: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -1641,10 +1859,16 @@ class ConsistencyMonitor:
         """True when :meth:`cover_rivals` widens a covariance at t (s): a fix was gated since
         the last fused one, a fix fused after gated ones is younger than ``max_bridge_s``, or an
         edge offset applies (callers skip forming the point and covariance otherwise)."""
+        if self._gated_fix is not None:
+            return True
         limit = self._shadow.params.max_bridge_s
-        return self._gated_fix is not None or self.edge_offset_variance(t) > 0 or any(
-            rival is not None and t - rival[0] <= limit
-            for rival in (self._rival, self._step_rival(t)))
+        if self._rival is not None and t - self._rival[0] <= limit:
+            return True
+        if self._steps:
+            step = self._step_rival(t)
+            if step is not None and t - step[0] <= limit:
+                return True
+        return self.edge_offset_variance(t) > 0
 
     @property
     def bridging_allowed(self) -> bool:
@@ -1704,7 +1928,7 @@ class ConsistencyMonitor:
         """The std scale the refusal rule reads: the shadow innovations' largest matched
         variance scale or the NIS matching factor, square-rooted."""
         if self._std_scale_value is None:
-            largest = float(self._innovation_scales.scale_table().max())
+            largest = self._innovation_scales.largest_scale()
             self._std_scale_value = math.sqrt(max(largest, self._nis_scale()))
         return self._std_scale_value
 

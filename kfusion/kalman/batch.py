@@ -22,12 +22,13 @@ from kfusion.kalman.engines import DEFAULT_ENGINE, ENGINES
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, merge_events, merge_order
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
 from kfusion.kalman.markers import shared_run_lengths
-from kfusion.kalman.model import output_covariance, output_point, timestamp_jitter
+from kfusion.kalman.model import BASE_SIZE, output_covariance, output_point, timestamp_jitter
 from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
 from kfusion.monitor import (
     ConsistencyMonitor,
     MonitorParameters,
     MonitorReport,
+    fix_covariances_widened,
     scale_beyond_evidence,
 )
 from kfusion.recording import Recording, on_mocap_clock, without_held_frames
@@ -403,12 +404,28 @@ class _RowRecorder:
         # at a fused fix whose prediction the monitor found worse than its P: the variance
         # per axis (m^2) of ConsistencyMonitor.at_fix, NaN elsewhere
         self.at_fix_variance = np.full((rows, 3), np.nan)
+        # (row, scale, factor) of ConsistencyMonitor.fix_widening where it widens a fix:
+        # widen_fixes turns them into at_fix_variance for all those rows at once
+        self.widening: list[tuple[int, float, float]] = []
         self.counters: dict[str, int] = {}
         self._fixed: NDArray[np.bool_] | None = None  # from_kernel: the rows whose fix was used
 
     def finish(self) -> None:
-        """Take the filter's final counters."""
+        """Take the filter's final counters and widen the fixes (:meth:`widen_fixes`)."""
         self.counters = self.fusion.counters
+        self.widen_fixes()
+
+    def widen_fixes(self) -> None:
+        """``at_fix_variance`` of the rows the monitor widens (:attr:`widening`): the variance
+        per axis of :meth:`ConsistencyMonitor.at_fix`, computed for all of them at once
+        (:func:`kfusion.monitor.fix_covariances_widened`, the same bits)."""
+        if self.monitor is None or not self.widening:
+            return
+        rows, scales, factors = (np.array(column) for column in zip(*self.widening, strict=True))
+        covariances = position_covariances(self.P[rows], self.output_matrix[rows])
+        widened = fix_covariances_widened(covariances, self.monitor.fix_noise_variance, scales,
+                                          factors)
+        self.at_fix_variance[rows] = np.diagonal(widened, axis1=1, axis2=2)
 
     def record(self, row: int, outcome: UpdateOutcome) -> None:
         fusion = self.fusion
@@ -441,9 +458,9 @@ class _RowRecorder:
             self.fix_variance[row] = np.diag(covariance)
         if initialised:
             H = self.output_matrix[row]
-            if monitor.fix_scale(outcome.t) > 1.0:  # the covariance only then
-                at_fix = monitor.at_fix(outcome.t, output_covariance(H, self.P[row]))
-                self.at_fix_variance[row] = np.diag(at_fix)
+            scale, factor = monitor.fix_widening(outcome.t)
+            if scale > 1.0 or factor > 1.0:  # widen_fixes computes the covariance
+                self.widening.append((row, scale, factor))
             if monitor.has_rivals(outcome.t):  # else the row's zeros stand
                 widened = monitor.cover_rivals(
                     outcome.t, output_point(H, self.x[row], self.output_offset[row]),
@@ -467,6 +484,7 @@ class _RowRecorder:
         recorder.fix_position = np.full((rows, 3), np.nan)
         recorder.fix_variance = np.full((rows, 3), np.nan)
         recorder.at_fix_variance = np.full((rows, 3), np.nan)
+        recorder.widening = []
         recorder.x, recorder.P = run.x, run.P
         recorder.output_matrix, recorder.output_offset = run.output_matrix, run.output_offset
         recorder.outcome = run.outcome.astype(object)
@@ -595,12 +613,17 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
         recorder = _RowRecorder(fusion, len(recording.mocap), watcher)
         process_recording(recording, fusion, recorder.record, watcher, measurement)
         recorder.finish()
+    kernel = rows is not None or monitored is not None  # the compiled whole-loop kernel ran
     status, since = status_from_fixes(recording.mocap.t, recorder.fixed, recorder.initialised,
                                       params.max_bridge_s, recorder.dead_reckoned,
-                                      engine="compiled" if rows is not None else "filterpy")
-    position, variance = (compiled_points(recorder) if rows is not None else
-                          point_estimates(recorder.x, recorder.P, recorder.output_matrix,
-                                          recorder.output_offset))
+                                      engine="compiled" if kernel else "filterpy")
+    # the compiled points have the bits of the filter's own (model.output_point, the Tracker's)
+    # where H = [I 0 0] selects the position (no lever-arm states): a sum of the selected
+    # entry and exact zeros, in any order
+    position, variance = (compiled_points(recorder)
+                          if rows is not None or (kernel and recorder.x.shape[1] == BASE_SIZE)
+                          else point_estimates(recorder.x, recorder.P, recorder.output_matrix,
+                                               recorder.output_offset))
     scale = np.ones(len(status))
     if watcher is not None:
         status, variance, scale = apply_monitor(status, variance, recorder.scale_tables,

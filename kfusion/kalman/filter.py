@@ -96,7 +96,16 @@ from filterpy.kalman import KalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
 from kfusion import streamhealth
-from kfusion.conventions import LOST, QUATERNION_NORM_TOLERANCE
+from kfusion.conventions import (  # the update outcomes: kfusion.kalman.filter's vocabulary
+    ACCEPTED,
+    GATED,
+    INITIALISED,
+    LOST,
+    OCCLUDED,
+    QUATERNION_NORM_TOLERANCE,
+    REACQUIRED,
+    USED_OUTCOMES,
+)
 from kfusion.guards import refuse_masked
 from kfusion.kalman import model
 from kfusion.kalman.events import imu_event_time
@@ -123,20 +132,6 @@ from kfusion.kalman.orientation import (
     quaternion_product,
 )
 from kfusion.kalman.parameters import KalmanParameters
-
-# update outcomes
-ACCEPTED: Final = "accepted"
-"""The fix passed the gate and was fused."""
-OCCLUDED: Final = "occluded"
-"""No usable position (None or NaN): nothing fused."""
-GATED: Final = "gated"
-"""The fix failed the chi-square gate (marker swap, jump): rejected, counted."""
-REACQUIRED: Final = "reacquired"
-"""Fix fused at least ``reacquire_after_s`` after the last accepted one (passing the gate, or
-after the state was lost, ``max_bridge_s``, when it re-initialises the position)."""
-INITIALISED: Final = "initialised"
-"""First fix ever: the state was initialised from it."""
-USED_OUTCOMES: Final = (ACCEPTED, REACQUIRED, INITIALISED)
 
 # predict outcomes
 PREDICTED: Final = "predicted"

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Final, cast
+from typing import Any, Final, NamedTuple, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,11 +52,11 @@ class RowSnapshot(CompiledSnapshot):
     row: int = -1
 
 
-@dataclass(frozen=True)
-class ShadowEstimate:
+class ShadowEstimate(NamedTuple):
     """What the monitor reads of its shadow's estimate at a frame: the rigid-body point (3,) m,
     its covariance (3, 3) m^2 and the velocity (3,) m/s (:class:`kfusion.kalman.filter.
-    FilterEstimate`'s fields of those names, computed as :meth:`CompiledFusion.estimate` does)."""
+    FilterEstimate`'s fields of those names, computed as :meth:`CompiledFusion.estimate` does;
+    a named tuple: one is made per shadow row)."""
 
     position: NDArray[np.float64]
     position_covariance: NDArray[np.float64]
@@ -102,6 +102,7 @@ class GapShadow:
         self._window_s = window_s
         self._first = self._row = -1
         self._rows: tuple[NDArray[np.float64], ...] = ()
+        self._points: tuple[NDArray[np.float64], ...] | None = None  # _selected_points
 
     def restore(self, snapshot: RowSnapshot) -> None:
         row = snapshot.row
@@ -116,6 +117,7 @@ class GapShadow:
         self._rows = () if last == row else self._checkpoints.run(
             snapshot.state.copy(), self._row_event[row] + 1, self._row_event[last] + 1,
             row + 1, last - row, hidden=True)
+        self._points = _selected_points(*self._rows) if self._rows else None
 
     def update(self, t: float, position: None, quaternion: None) -> None:
         self._row += 1
@@ -130,9 +132,32 @@ class GapShadow:
             estimate = self._fusion.estimate()
             return ShadowEstimate(estimate.position, estimate.position_covariance,
                                   estimate.velocity)
-        x, P, H, offset = (rows[self._row - self._first - 1] for rows in self._rows)
+        index = self._row - self._first - 1
+        if self._points is not None:
+            position, covariance, velocity = self._points
+            return ShadowEstimate(position[index], covariance[index], velocity[index])
+        x, P, H, offset = (rows[index] for rows in self._rows)
         return ShadowEstimate(model.output_point(H, x, offset), model.output_covariance(H, P),
                               x[model.VELOCITY].copy())
+
+
+def _selected_points(x: NDArray[np.float64], P: NDArray[np.float64], H: NDArray[np.float64],
+                     offset: NDArray[np.float64]
+                     ) -> tuple[NDArray[np.float64], ...] | None:
+    """The rigid-body points (k, 3) m, their covariances (k, 3, 3) m^2 and the velocities
+    (k, 3) m/s of k rows (states (k, n), covariances (k, n, n), output maps H (k, 3, n) and c
+    (k, 3)) at once, where every H is ``[I 0 0]`` (no lever-arm states) and the states are
+    finite: ``H x + c`` is then ``x[:3] + c`` and ``H P H^T`` is ``P[:3, :3]`` to the bit
+    (:func:`kfusion.kalman.model.output_point`'s products are the selected entries and exact
+    zeros). None otherwise (each row is computed as the Tracker does)."""
+    size = x.shape[1]
+    selector = np.zeros((3, size))
+    selector[:, model.POSITION] = np.eye(3)
+    if not (np.array_equal(H, np.broadcast_to(selector, H.shape))
+            and np.isfinite(x).all() and np.isfinite(P).all()):
+        return None
+    return (x[:, model.POSITION] + offset, P[:, model.POSITION, model.POSITION],
+            x[:, model.VELOCITY])
 
 
 def _no_counters() -> NDArray[np.int64]:
@@ -192,9 +217,10 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
         outcome = UpdateOutcome(t, kinds[row], nis[row], y=run.y[row] if fused[row] else None,
                                 S=run.S[row] if fused[row] else None)
         main.row = row
-        monitor.mocap(t, fixes[row].copy() if shown[row] else None, outcome,
+        monitor.mocap(t, fixes[row] if shown[row] else None, outcome,  # (it copies what it keeps)
                       cast(KalmanFusion, main), prior)
         recorder.record_monitor(row, outcome, initialised[row])
+    recorder.widen_fixes()
     kept = run.replay
     step = compiled.SAVE_EVERY // every  # the smoother's states among the kept ones
     replay = compiled.Replay(kept.inputs, config, kept.first_state,
