@@ -89,7 +89,7 @@ from kfusion.monitor import (
     nis_matching_scale,
     normalised_error_squared,
     quantile_matching_scale,
-    required_scale,
+    required_scales,
     smoothed_edge_sensitivity,
 )
 from kfusion.recording import (
@@ -337,18 +337,20 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     # the hidden fix's noise: R, matched down by the NIS when that shows it pessimistic (as in
     # the online monitor's shadow innovations)
     noise = fix_noise_variance(params, run.nis, run.outcome)
-    covariance = position_covariances(run.P, run.output_matrix) + noise * np.eye(3)
     # matched at the bound's own confidence: the hold-out gaps sample the same recording the
     # real gaps are in (the online monitor's shadows predict gaps still to come)
     scales = HorizonScales(dataclasses.replace(monitor, memory=len(mocap.t),
                                                horizon_edges_s=monitor.holdout_edges_s,
                                                max_std_scale=monitor.holdout_max_std_scale,
                                                matching_quantile=monitor.confidence))
+    bridged = run.result.status == BRIDGED
     for start, stop in occlusion_runs(~hidden.gap_mask):
-        rows = [row for row in range(start, stop) if run.result.status[row] == BRIDGED]
-        scales.add_gap(horizon[rows], [
-            required_scale(run.result.position[row] - hidden.truth_position[row],
-                           covariance[row], monitor.confidence) for row in rows])
+        rows = start + np.flatnonzero(bridged[start:stop])
+        covariance = position_covariances(run.P[rows], run.output_matrix[rows]) \
+            + noise * np.eye(3)
+        scales.add_gap(horizon[rows], required_scales(
+            run.result.position[rows] - hidden.truth_position[rows], covariance,
+            monitor.confidence))
     return scales
 
 
