@@ -446,6 +446,12 @@ class TrackerSnapshot:
     _state: Any = field(repr=False, compare=False)
 
 
+SNAPSHOT_FORMAT: Final = 2
+"""Version of the state a :class:`TrackerSnapshot` holds (part of its configuration): raised
+whenever the estimator's or the monitor's state changes shape, so that a snapshot pickled by
+another version of kfusion is refused by :meth:`Tracker.restore` with a ValueError rather than
+restored and failing later (2: the monitor's sorted horizon rows and per-fix caches)."""
+
 _NUMERICAL_ERRORS: Final = (ArithmeticError, ValueError, np.linalg.LinAlgError)
 """What the estimator's maths may raise on overflowing numbers (math.sin(inf), singular S)."""
 
@@ -1599,14 +1605,16 @@ class Tracker:
         """Continue from ``snapshot`` (taken from a tracker built with the same arguments).
 
         Raises:
-            ValueError: not a :class:`TrackerSnapshot`, or taken with other arguments.
+            ValueError: not a :class:`TrackerSnapshot`, or taken with other arguments or by a
+                version of kfusion with another :data:`SNAPSHOT_FORMAT`.
         """
         if not isinstance(snapshot, TrackerSnapshot):
             raise ValueError(f"restore: expected a TrackerSnapshot, got "
                              f"{type(snapshot).__name__}")
         if snapshot._configuration != self._configuration():
             raise ValueError("restore: expected a snapshot from a tracker with the same method, "
-                             "parameters, mounting and options; got one from another")
+                             "parameters, mounting and options (and this version of kfusion's "
+                             "state format); got one from another")
         state = copy.deepcopy(snapshot._state)
         self._estimator.restore(state["estimator"])
         self._book = state["book"]
@@ -1627,7 +1635,7 @@ class Tracker:
     # ---- internals ---------------------------------------------------------------------------
 
     def _configuration(self) -> tuple:
-        return (self.method, repr(self.params), self.imu_profile, self.options,
+        return (SNAPSHOT_FORMAT, self.method, repr(self.params), self.imu_profile, self.options,
                 tuple(self._imu_to_body), tuple(self._gravity),
                 None if self._lever_arm is None else tuple(self._lever_arm),
                 self._marker_names, None if self._marker_body is None

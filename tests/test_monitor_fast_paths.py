@@ -189,3 +189,31 @@ def test_selected_points_are_the_output_maps_bits_and_only_for_the_selector() ->
                             lever, offset) is None
     P[3, 0, 0] = math.inf
     assert _selected_points(x, P, H, offset) is None  # 0 * inf is NaN in the products
+
+
+def test_means_of_huge_windows_are_inf_not_an_error() -> None:
+    """sum_mean (math.fsum) raises on finite values summing beyond the largest float; the NIS
+    window's tests then give numpy's mean, inf, as before."""
+    from kfusion.monitor import nis_matching_scale, sum_mean, windowed_nis_test
+
+    huge = [1e308, 1e308, 3.0]
+    assert sum_mean(huge) == math.inf
+    assert windowed_nis_test(huge).mean == math.inf
+    assert nis_matching_scale(huge) == math.inf
+    assert sum_mean([1.0, 2.0, 4.0]) == 7.0 / 3.0
+
+
+def test_a_snapshot_of_another_state_format_is_refused() -> None:
+    """A TrackerSnapshot carries SNAPSHOT_FORMAT in its configuration: one pickled by a
+    version of kfusion whose state had another shape is refused with a ValueError, not restored
+    to fail later."""
+    from kfusion import tracker as tracker_module
+    from kfusion.tracker import Tracker
+
+    tracker = Tracker(imu_to_body=[1.0, 0.0, 0.0, 0.0], gravity=[0.0, 0.0, -9.81])
+    snapshot = tracker.snapshot()
+    older = dataclasses.replace(snapshot, _configuration=(
+        tracker_module.SNAPSHOT_FORMAT - 1, *snapshot._configuration[1:]))
+    with pytest.raises(ValueError, match="state format"):
+        tracker.restore(older)
+    tracker.restore(snapshot)
