@@ -247,7 +247,7 @@ def test_rows_fused_from_two_markers_are_covered_with_the_imu_slowed_down():
     """Only markers 0-2 visible after 1 s (frames of 2 markers where one is missing) and the
     IMU 8x slower from the start: the block test is on from about 2 s. The 2-marker rows,
     fused without a rigid-body origin, kept the bare P+: 33 of 106 were beyond the 99 %
-    bound (up to 1.97x); now 16."""
+    bound (up to 1.97x); now 7 (16 with the horizon measured from the last fused frame)."""
     simulation = simulate("random_reach", seed=0, imu="mpu9255", duration=20.0,
                           markers=MarkerSpec(),
                           occlusions=OcclusionSpec(gap_range=(0.1, 0.5), spacing=1.5))
@@ -266,7 +266,7 @@ def test_rows_fused_from_two_markers_are_covered_with_the_imu_slowed_down():
     bound = np.array([position_bound(np.diag(std ** 2), 0.99) for std in run.result.std[shown]])
     error = np.linalg.norm(run.result.position[shown] - truth[shown], axis=1)
     assert shown.sum() > 80
-    assert np.mean(error > bound) < 0.2
+    assert np.mean(error > bound) < 0.12
 
 
 def rows_beyond_bound(result, truth, first_row: int) -> tuple[int, int]:
