@@ -562,31 +562,21 @@ def positive_part(matrix: NDArray[np.float64]) -> NDArray[np.float64]:
     """The symmetric (3, 3) ``matrix`` with its negative eigenvalues set to 0,
     ``V max(Lambda, 0) V^T``; the matrix itself when it has none (the eigendecomposition is
     skipped when :func:`clearly_positive_definite` shows that)."""
-    if clearly_positive_definite(matrix):
-        return matrix
-    values, vectors = np.linalg.eigh(matrix)
-    if values.min() < 0.0:
-        return (vectors * np.maximum(values, 0.0)) @ vectors.T
-    return matrix
+    return positive_parts(np.asarray(matrix, dtype=float)[None])[0]
 
 
 def positive_parts(matrices: NDArray[np.float64]) -> NDArray[np.float64]:
     """:func:`positive_part` of each of k symmetric matrices (k, 3, 3): those
-    :func:`clearly_positive_definite` shows positive definite (the test's comparisons element
-    by element) as they are, the others one by one."""
-    m = matrices
-    diagonal = np.diagonal(m, axis1=1, axis2=2)
-    absolute = np.abs(m)
-    largest = absolute.reshape(len(m), 9).max(axis=1)
-    lowest = np.minimum(np.minimum(diagonal[:, 0] - absolute[:, 0, 1] - absolute[:, 0, 2],
-                                   diagonal[:, 1] - absolute[:, 1, 0] - absolute[:, 1, 2]),
-                        diagonal[:, 2] - absolute[:, 2, 0] - absolute[:, 2, 1])
-    clear = np.isfinite(m).all(axis=(1, 2)) & (lowest > 1e-8 * largest)
+    :func:`clearly_positive_definite` shows positive definite as they are, the others through
+    their eigendecomposition one by one."""
+    clear = clearly_positive_definite_rows(matrices)
     if clear.all():
-        return m
-    result = m.copy()
+        return matrices
+    result = matrices.copy()
     for row in np.flatnonzero(~clear).tolist():
-        result[row] = positive_part(m[row])
+        values, vectors = np.linalg.eigh(matrices[row])
+        if values.min() < 0.0:
+            result[row] = (vectors * np.maximum(values, 0.0)) @ vectors.T
     return result
 
 
@@ -600,13 +590,21 @@ def clearly_positive_definite(matrix: NDArray[np.float64], margin: float = 1e-8)
     An eigensolver's error is of the order of the machine epsilon (1e-16) times the matrix's
     norm, far below that margin, so ``np.linalg.eigh`` then finds no negative eigenvalue: a
     caller that only clips negative ones may skip it. False otherwise (including NaN)."""
-    entries = matrix.tolist()
-    (a, b, c), (d, e, f), (g, h, i) = entries
-    if not all(map(math.isfinite, entries[0] + entries[1] + entries[2])):
-        return False
-    largest = max(abs(a), abs(b), abs(c), abs(d), abs(e), abs(f), abs(g), abs(h), abs(i))
-    lowest = min(a - abs(b) - abs(c), e - abs(d) - abs(f), i - abs(g) - abs(h))
-    return lowest > margin * largest
+    return bool(clearly_positive_definite_rows(np.asarray(matrix, dtype=float)[None],
+                                               margin)[0])
+
+
+def clearly_positive_definite_rows(matrices: NDArray[np.float64], margin: float = 1e-8
+                                   ) -> NDArray[np.bool_]:
+    """(k,) :func:`clearly_positive_definite` of k matrices (k, 3, 3), element by element."""
+    diagonal = np.diagonal(matrices, axis1=1, axis2=2)
+    absolute = np.abs(matrices)
+    largest = absolute.reshape(len(matrices), 9).max(axis=1)
+    lowest = np.minimum(np.minimum(diagonal[:, 0] - absolute[:, 0, 1] - absolute[:, 0, 2],
+                                   diagonal[:, 1] - absolute[:, 1, 0] - absolute[:, 1, 2]),
+                        diagonal[:, 2] - absolute[:, 2, 0] - absolute[:, 2, 1])
+    with np.errstate(invalid="ignore"):  # NaN or inf entries: not clearly anything
+        return np.isfinite(matrices).all(axis=(1, 2)) & (lowest > margin * largest)
 
 
 def _constant_velocity_model(accelerometer_noise_density: float, period_s: float
