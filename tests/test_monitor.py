@@ -322,12 +322,15 @@ def test_the_monitor_changes_the_bound_not_the_estimate():
     with_monitor = run_filter(sim.recording).result
     without = run_filter(sim.recording, monitor=None).result
     r = run_filter(sim.recording).params.mocap_position_noise
-    # until recent_fixes fixes have tested the model (tightly predicted ones: the first
-    # predictions after the first fix are loose), a row is its fix alone (as when refused):
-    # position the fix, std the mocap noise
+    # until recent_fixes fixes have tested the model (tightly predicted ones, from
+    # reacquisition_rival_s after the first fix on: the first predictions are loose, and the
+    # first fixes of a body may be off with nothing to compare them with), a row is its fix
+    # alone (as when refused): position the fix, std the mocap noise
     alone = np.all(with_monitor.std == r, axis=1)
     tested = 1 + int(np.argmin(alone[1:]))
-    assert MonitorParameters().recent_fixes < tested <= 10
+    t = sim.recording.mocap.t
+    window = int(np.searchsorted(t - t[0], MonitorParameters().reacquisition_rival_s))
+    assert window + MonitorParameters().recent_fixes - 1 <= tested <= window + 10
     np.testing.assert_array_equal(with_monitor.position[1:tested],
                                   sim.recording.mocap.position[1:tested])
     np.testing.assert_array_equal(with_monitor.position[tested:], without.position[tested:])
@@ -344,6 +347,30 @@ def test_the_monitor_changes_the_bound_not_the_estimate():
     no_rival = run_filter(sim.recording,
                           monitor=MonitorParameters(reacquisition_rival_s=0.0)).result
     np.testing.assert_array_equal(no_rival.std[tracked & after], without.std[tracked & after])
+
+
+def test_the_first_fixes_of_a_body_are_shown_alone():
+    """A body whose first 10 fixes are 3 mm off (solved while its cluster appears, with no
+    prediction before them to compare with): the fixes right after agree with them, so before
+    this rule the model counted as tested from the 6th-9th fix on and those rows claimed the
+    posterior's bound, below the mocap noise (on BROAD trial 21, 4.4x below the error). The
+    fixes of the first reacquisition_rival_s do not test the model: each of those rows is its
+    fix alone, std the mocap noise. Fails on the code before the rule (rows 7-9 had the
+    posterior)."""
+    sim = simulation(7)
+    mocap = sim.recording.mocap
+    position = np.array(mocap.position)
+    position[:10] += [0.003, 0.0, 0.0]
+    shifted = dataclasses.replace(sim.recording,
+                                  mocap=dataclasses.replace(mocap, position=position))
+    for result in (run_filter(shifted).result, run_filter(shifted, engine="filterpy").result):
+        r = run_filter(shifted).params.mocap_position_noise
+        window = mocap.t - mocap.t[0] < MonitorParameters().reacquisition_rival_s
+        assert window[:10].all()
+        np.testing.assert_array_equal(result.std[:10], r)
+        np.testing.assert_array_equal(result.position[window], position[window])
+        # the fixes jumping back are a step: its rival widens the fix alone from there
+        assert (result.std[window] >= r).all() and result.std[10, 0] > 3 * r
 
 
 def time_since_reacquisition(recording) -> np.ndarray:

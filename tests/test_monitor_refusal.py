@@ -16,6 +16,7 @@ import pytest
 
 from kfusion.kalman import run_filter, run_smoother
 from kfusion.kalman.events import IMU_STREAM, merge_events
+from kfusion.monitor import MonitorParameters
 from kfusion.simulate import simulate
 from kfusion.tracker import Tracker, position_bound
 
@@ -110,7 +111,8 @@ def test_an_untested_model_does_not_bridge(after_fixes):
     """Gravity given with the wrong sign and a gap after the first 2-3 fixes: before, the gap
     was bridged 800-940 mm off with a 40-50 mm bound (no NIS could show it yet); now it is
     lost until recent_fixes fixes have been compared with tight predictions. A correct
-    configuration bridges a gap after 8 fixes (the first two or three predictions are loose:
+    configuration bridges a gap 8 fixes after the first reacquisition_rival_s (fixes before
+    then do not test the model; of the next ones the first two or three predictions are loose:
     the velocity is barely known yet)."""
     simulation = simulate("random_reach", seed=0, duration=8.0, occlusions=None)
     truth = np.asarray(simulation.truth.position)
@@ -121,8 +123,10 @@ def test_an_untested_model_does_not_bridge(after_fixes):
     run = _stream(_early_gap(flipped, after_fixes))
     assert (run["status"][gap] == "lost").all()
     assert _confidently_wrong(run["position"], run["std"], run["status"], truth) <= 0.01
-    clean = _stream(_early_gap(recording, 8))
-    assert (clean["status"][8:38] == "bridged").all()
+    t = recording.mocap.t
+    start = int(np.searchsorted(t - t[0], MonitorParameters().reacquisition_rival_s)) + 8
+    clean = _stream(_early_gap(recording, start))
+    assert (clean["status"][start:start + 30] == "bridged").all()
 
 
 @pytest.mark.parametrize("angle_deg, fixes", [(90.0, 6), (30.0, 8)])
