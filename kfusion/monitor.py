@@ -1144,6 +1144,24 @@ class MonitorParameters:
                              f"({self.shadow_window_s}), got {self.shadow_period_s}")
 
 
+def held_at_frame(peak: float, variance: NDArray[np.float64]) -> tuple[float, float]:
+    """(factor, peak after the frame) for a bridged frame whose per-axis variances are
+    ``variance`` (3,) m^2 (its covariance's diagonal), ``peak`` the largest per-axis variance
+    an earlier frame of the same gap reported (0 at the gap's start): the factor
+    ``peak / max_i variance_i`` when that exceeds 1 (the frame's covariance times it reaches
+    the peak, which stays), else 1 and the frame's largest variance is the new peak; a
+    non-finite row neither takes nor sets it. Bounds that never shrink within a gap
+    (:func:`kfusion.kalman.batch.held_in_gaps`): the batch filter and the Tracker both step
+    the peak here, to the bit."""
+    first, second, third = float(variance[0]), float(variance[1]), float(variance[2])
+    if not (math.isfinite(first) and math.isfinite(second) and math.isfinite(third)):
+        return 1.0, peak  # not a bound: it neither takes nor sets the peak
+    largest = max(first, second, third)
+    if peak > largest:
+        return (peak / largest if largest > 0.0 else 1.0), peak
+    return 1.0, largest
+
+
 @dataclass(frozen=True)
 class MonitorReport:
     """What the monitor found (health / diagnostics).

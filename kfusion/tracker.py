@@ -145,6 +145,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kfusion.conventions import (
+    BRIDGED,
     GRAVITY_MAGNITUDE_RANGE,
     LOST,
     QUATERNION_NORM_TOLERANCE,
@@ -154,7 +155,7 @@ from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, sho
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, event_key
 from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, OCCLUDED, REACQUIRED
 from kfusion.kalman.model import VELOCITY
-from kfusion.monitor import CLOCK, IMU_MOTION, MonitorReport
+from kfusion.monitor import CLOCK, IMU_MOTION, MonitorReport, held_at_frame
 from kfusion.online_clock import (
     DEFAULT_WINDOW_S,
     OnlineClockCheck,
@@ -451,7 +452,8 @@ SNAPSHOT_FORMAT: Final = 3
 whenever the estimator's or the monitor's state changes shape, so that a snapshot pickled by
 another version of kfusion is refused by :meth:`Tracker.restore` with a ValueError rather than
 restored and failing later (2: the monitor's sorted horizon rows and per-fix caches; 3: the
-time of the first fused frame, from which fixes test the model)."""
+time of the first fused frame, from which fixes test the model, and the running gap's peak
+variance)."""
 
 _NUMERICAL_ERRORS: Final = (ArithmeticError, ValueError, np.linalg.LinAlgError)
 """What the estimator's maths may raise on overflowing numbers (math.sin(inf), singular S)."""
@@ -620,6 +622,10 @@ class _Estimator(Protocol):
     def read(self, t: float, trust_model: bool = True,
              suspected_clock: tuple[float, float] | None = None) -> _Reading | None: ...
 
+    def note_gap_frame(self, t: float) -> None:
+        """A frame at t (s) just processed, reported ``bridged``: its bound joins the gap's
+        peak, below which no later reading of the gap falls."""
+
     def finite(self) -> bool: ...
 
     def resets(self) -> int: ...
@@ -693,6 +699,9 @@ class _BaselineEstimator:
         return _Reading(np.array(output.position, dtype=float), nan3, np.full((3, 3), np.nan),
                         nan3)
 
+    def note_gap_frame(self, t: float) -> None:
+        pass  # no bound
+
     def finite(self) -> bool:
         return True  # its state is rebuilt at every fix; the tracker checks every reading
 
@@ -747,6 +756,9 @@ class _KalmanEstimator:
         # a suspected clock offset's error in a gap grows with its change (read)
         self._fix_velocity: NDArray[np.float64] | None = None
         self._mocap_noise_variance = float(params.mocap_position_noise) ** 2  # R = this I, m^2
+        # the largest per-axis variance (m^2) the frames of the running gap reported, 0 at a
+        # fix (kfusion.kalman.batch.held_in_gaps): no reading of the gap falls below it
+        self._gap_peak = 0.0
 
     def predict(self, t: float, accelerometer: _Three, gyroscope: _Three) -> None:
         """A sample the tracker validated: t a finite float after the previous sample's stamp,
@@ -770,6 +782,7 @@ class _KalmanEstimator:
         self.monitor.mocap(t, position, outcome, self._fusion, prior)
         if outcome.accepted:
             self._fix_velocity = self._fusion.x[VELOCITY].copy()
+            self._gap_peak = 0.0
         return _KALMAN_OUTCOMES[outcome.kind]
 
     def update_markers(self, t: float, observed: NDArray, body: NDArray
@@ -785,6 +798,7 @@ class _KalmanEstimator:
                            self._fusion, prior)
         if outcome.accepted:
             self._fix_velocity = self._fusion.x[VELOCITY].copy()
+            self._gap_peak = 0.0
         return _KALMAN_OUTCOMES[outcome.kind], outcome.markers_used, outcome.markers_gated
 
     def read(self, t: float, trust_model: bool = True,
@@ -813,9 +827,11 @@ class _KalmanEstimator:
             covariance = self.monitor.cover_rivals(t, position, covariance)
             return _Reading(position, step.velocity, 0.5 * (covariance + covariance.T),
                             np.sqrt(np.diag(covariance)))
-        if step.time_since_fix > 0.0:  # in a gap: the monitor's scale
-            scale = self.monitor.variance_scale(step.time_since_fix)
-            covariance = covariance * scale
+        if step.time_since_fix > 0.0:  # in a gap: the monitor's scale, never below the peak
+            covariance = self._gap_covariance(t, step)
+            factor, _ = held_at_frame(self._gap_peak, np.diag(covariance))
+            if factor > 1.0:
+                covariance = covariance * factor
             if suspected_clock is not None and self._fix_velocity is not None:
                 change = self._fusion.x[VELOCITY] - self._fix_velocity
                 covariance = covariance + timing_error_covariance(*suspected_clock, change)
@@ -824,11 +840,28 @@ class _KalmanEstimator:
             if suspected_clock is not None:  # and whose timing error is unknown
                 covariance = suspected_clock_fix_covariance(covariance,
                                                             self._mocap_noise_variance)
-        # the rivals' part formed alone and added, in the batch recorder's order of
-        # operations (P + (d d^T + R), not (P + d d^T) + R): the two agree to the bit
-        covariance = covariance + self.monitor.cover_rivals(t, step.position, _ZERO_3X3)
+            covariance = covariance + self.monitor.cover_rivals(t, step.position, _ZERO_3X3)
         std = np.sqrt(np.diag(covariance))
         return _Reading(step.position, step.velocity, 0.5 * (covariance + covariance.T), std)
+
+    def _gap_covariance(self, t: float, step: Any) -> NDArray[np.float64]:
+        """The position covariance (3, 3) m^2 at t (s) in a gap, from the filter's estimate
+        ``step`` there: scaled by the monitor, plus its rivals' part, formed alone and added in
+        the batch recorder's order of operations (P + (d d^T + R), not (P + d d^T) + R): the
+        two agree to the bit (:func:`kfusion.kalman.batch.monitored_output`)."""
+        covariance = step.position_covariance * self.monitor.variance_scale(step.time_since_fix)
+        return covariance + self.monitor.cover_rivals(t, step.position, _ZERO_3X3)
+
+    def note_gap_frame(self, t: float) -> None:
+        """A frame at t (s) reported ``bridged``: the largest per-axis variance of its
+        covariance (before any suspected clock's timing term, which the batch filter has not)
+        joins the gap's peak (:func:`kfusion.kalman.batch.held_at_frame`)."""
+        if not self.monitor.bridging_allowed:
+            return  # read() shows no bridged position
+        step = self._fusion.estimate(t)
+        if step.time_since_fix > 0.0:
+            _, self._gap_peak = held_at_frame(self._gap_peak,
+                                              np.diag(self._gap_covariance(t, step)))
 
     def finite(self) -> bool:
         kf = self._fusion._kf  # read only, without the public properties' copies
@@ -853,13 +886,14 @@ class _KalmanEstimator:
             self._monitor_state = monitor.state_snapshot()
         # the shared state is never changed: ConsistencyMonitor.restore copies it
         return (self._fusion.snapshot(), (self._monitor_state, monitor.shadow_snapshot()),
-                self._fix_velocity)  # never changed in place: shared safely
+                self._fix_velocity, self._gap_peak)  # never changed in place: shared safely
 
     def restore(self, snapshot: object) -> None:
         self._reckoning = self._monitor_state = None
         self._fusion.restore(snapshot[0])  # type: ignore[index]
         self.monitor.restore(snapshot[1])  # type: ignore[index]
         self._fix_velocity = snapshot[2]  # type: ignore[index]
+        self._gap_peak = snapshot[3]  # type: ignore[index]
 
 
 _NO_POSE: Final[tuple[NDArray[np.float64], NDArray[np.float64]]] = (np.full(3, np.nan),
@@ -1905,6 +1939,11 @@ class Tracker:
         if status == LOST and book.status != LOST:
             book.counts.lost_transitions += 1
         book.status = status
+        if stream == MOCAP_STREAM and status == BRIDGED:
+            try:
+                self._estimator.note_gap_frame(t)
+            except _NUMERICAL_ERRORS:
+                pass  # estimate() finds the same reading unusable (lost)
         return outcome
 
     def _apply(self, event: tuple) -> str:

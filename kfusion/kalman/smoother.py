@@ -52,7 +52,6 @@ from kfusion.kalman.batch import (
     MARKERS,
     _RowRecorder,
     apply_monitor,
-    at_fix_rows,
     check_engine,
     compiled_points,
     compiled_rows,
@@ -63,6 +62,7 @@ from kfusion.kalman.batch import (
     marker_inputs,
     measurement_engine,
     monitored_kernel_rows,
+    monitored_output,
     point_estimates,
     position_covariances,
     process_recording,
@@ -590,13 +590,9 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                           point_estimates(recorder.x, recorder.P, recorder.output_matrix,
                                           recorder.output_offset))
     if watcher is not None:
-        filtered_status, variance, _ = apply_monitor(filtered_status, variance,
-                                                     recorder.scale_tables, recorder.allowed,
-                                                     since, watcher.params.horizon_edges_s)
-        variance = at_fix_rows(variance, recorder.at_fix_variance) + recorder.rival_variance
-        filtered_status, position, variance = fix_only_rows(
-            filtered_status, position, variance, recorder.allowed, recorder.fix_position,
-            recorder.fix_variance)
+        filtered_status, position, variance, _ = monitored_output(
+            filtered_status, position, variance, recorder, since,
+            watcher.params.horizon_edges_s)
     filtered = TrackResult(t=t, position=position, std=np.sqrt(variance),
                            status=filtered_status, time_since_fix=since, method="kalman")
     if replay is not None:
