@@ -15,6 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from kfusion.commands.stream import stream_recording
 from kfusion.datasets import broad_excerpt
 from kfusion.evaluate import cut_gaps
 from kfusion.kalman import batch, run_filter, run_smoother
@@ -103,20 +104,9 @@ def test_a_gaps_bound_never_shrinks(build, monkeypatch):
 
 
 def stream(recording, tracker: Tracker):
-    """Push in time order (IMU first at equal times); the estimate right after each frame."""
-    imu, mocap = recording.imu, recording.mocap
-    events = sorted([(float(t), 0, i) for i, t in enumerate(imu.t)]
-                    + [(float(t), 1, i) for i, t in enumerate(mocap.t)])
-    estimates = []
-    for t, kind, index in events:
-        if kind == 0:
-            tracker.push_imu(t, imu.accelerometer[index], imu.gyroscope[index])
-        else:
-            seen = mocap.visible[index]
-            tracker.push_mocap(t, mocap.position[index] if seen else None,
-                               mocap.quaternion[index] if seen else None)
-            estimates.append(tracker.estimate(t))
-    return estimates
+    """The Tracker's estimate right after each frame, pushed in the fusion order
+    (:func:`kfusion.commands.stream.stream_recording`)."""
+    return [estimate for _, estimate in stream_recording(recording, tracker)]
 
 
 def test_the_tracker_holds_the_same_peak_to_the_bit():
