@@ -27,14 +27,14 @@ from hypothesis import strategies as st
 
 from kfusion.conventions import STATUSES
 from kfusion.profiles import MPU9255
-from kfusion.tracker import IMU_REJECTIONS, MOCAP_REJECTIONS, Tracker
+from kfusion.tracker import IMU_REJECTIONS, MOCAP_REJECTIONS, WAITING, Tracker
 
 GRAVITY = np.array([0.0, -9.81, 0.0])
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 HOME = np.array([0.2, 1.0, 0.3])
 RANGE = MPU9255.accelerometer_range
-REASONS = {"accepted", "initialised", "saturated", "reacquired", "occluded", "gated",
-           *IMU_REJECTIONS, *MOCAP_REJECTIONS}
+REASONS = {"accepted", "initialised", "saturated", "reacquired", "occluded", "gated", WAITING,
+           *IMU_REJECTIONS, *MOCAP_REJECTIONS}  # WAITING: a frame ahead of the cadence
 
 TIMES = ["step"] * 8 + ["lag"] * 6 + ["zero", "back", "dropout", "long", "huge", "overflow", "nan",
                         "inf"]
