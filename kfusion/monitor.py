@@ -1394,6 +1394,7 @@ class ConsistencyMonitor:
         self._step_count = 0  # fixes taken as steps (MonitorReport.steps)
         self._tested_fixes = 0  # fixes compared with a prediction (model_tested)
         self._first_fix_t = math.inf  # time of the first fused frame, s (model_tested)
+        self._appeared = False  # a fused frame came reacquisition_rival_s after it or later
 
     # -------------------------------------------------------------- events
 
@@ -1433,10 +1434,13 @@ class ConsistencyMonitor:
         estimate at t before this frame (needed only when :meth:`wants_prior`)."""
         self._widening_value = None  # the state changes from here
         kind, nis, params = outcome.kind, outcome.nis, self.params
-        if kind in USED_OUTCOMES and self._first_fix_t == math.inf:
-            self._first_fix_t = t
+        if kind in USED_OUTCOMES:
+            if self._first_fix_t == math.inf:
+                self._first_fix_t = t
+            if not self._appeared and t - self._first_fix_t >= params.reacquisition_rival_s:
+                self._appeared = True  # model_tested from here
+                self._bridging_value = None
         if kind in (ACCEPTED, REACQUIRED) and math.isfinite(nis) and not self.model_tested \
-                and t - self._first_fix_t >= params.reacquisition_rival_s \
                 and self._informative(t, fusion):
             self._tested_fixes += 1  # compared with a tight prediction (model_tested)
             self._bridging_value = None
@@ -1777,14 +1781,22 @@ class ConsistencyMonitor:
         (:attr:`bridging_allowed` False): at the time of the last fused fix, that fix (3,) m
         with the mocap noise R = sigma_mocap^2 I (3, 3) m^2, times the innovations' factor of
         :meth:`at_fix` when that exceeds 1 (the mocap may be what is noisier); None at any
-        other time (without a trusted motion model the position between fixes is unknown)."""
+        other time (without a trusted motion model the position between fixes is unknown).
+        Within ``reacquisition_rival_s`` of the first fused frame the fix may also be a body
+        solved while its cluster appears, off by as much as the step rule lets through
+        (:func:`step_offset_variance`, 2.7 R, added per axis): nothing came before it to
+        compare with (:attr:`model_tested`). On simulated fixes with their 0.3 mm noise, the
+        first 10 frames 3 mm off were 3.5-3.8x beyond R's bound; with the term 1.8-2.0x."""
         if self._last_fix is None or t != self._last_fix[0]:
             return None
         noise = self._shadow.params.mocap_position_noise ** 2
         # the innovations' factor (at_fix): when they are too large the mocap may be the part
         # that is noisier than configured, and the fix alone then has k R, not R
         _, factor = self._fix_widening(t)
-        return self._last_fix[1].copy(), factor * noise * np.eye(3)
+        variance = factor * noise
+        if t - self._first_fix_t < self.params.reacquisition_rival_s:
+            variance = variance + step_offset_variance(noise, self.params)
+        return self._last_fix[1].copy(), variance * np.eye(3)
 
     def at_fix(self, t: float, covariance: NDArray[np.float64]) -> NDArray[np.float64]:
         """The position covariance (3, 3) m^2 at the time of the last fused fix, t (s), with the
@@ -1934,22 +1946,25 @@ class ConsistencyMonitor:
     @property
     def model_tested(self) -> bool:
         """True once ``recent_fixes`` fixes have been compared with predictions tight enough
-        to test the model (:meth:`_informative`; ``accepted`` or ``reacquired``), counted from
-        ``reacquisition_rival_s`` after the first fused frame: before, :attr:`bridging_allowed`
-        is False because the model is untested, not because the data refused it, and a row
-        with a fix is that fix alone. Right after the first fix (or a reset) the velocity is
-        barely known, the predictions are loose and their NIS small whatever the model: with
-        the IMU rotated 90° on the forearm, the first 5 fixes after a reset let a gap be
-        bridged 590 mm off with a 35 mm bound. A body seen too rarely for a tight prediction
-        (one frame in 0.6 s) is never tested, and never bridged.
+        to test the model (:meth:`_informative`; ``accepted`` or ``reacquired``) and a frame
+        has been fused ``reacquisition_rival_s`` after the first fused frame or later: before,
+        :attr:`bridging_allowed` is False because the model is untested, not because the data
+        refused it, and a row with a fix is that fix alone (:meth:`fix_only`). Right after the
+        first fix (or a reset) the velocity is barely known, the predictions are loose and
+        their NIS small whatever the model: with the IMU rotated 90° on the forearm, the first
+        5 fixes after a reset let a gap be bridged 590 mm off with a 35 mm bound. A body seen
+        too rarely for a tight prediction (one frame in 0.6 s) is never tested, and never
+        bridged.
 
         The first fixes of a body are what a fix ending a gap is (a rigid body solved while its
         cluster appears can be off by a few mm for a few frames), with no prediction before
         them to keep as a rival (:meth:`_reacquisition_rival`), and the fixes right after
-        agree with them, so they do not count either: BROAD trial 21 starts occluded, and with
-        its first 10 frames 3 mm off the posterior's bound claimed them at 4.4x below the
-        error; the fix alone is 2.97x below (``benchmarks/failsafe.py``)."""
-        return self._tested_fixes >= self.params.recent_fixes
+        agree with them, so the posterior built on them is not shown before the window has
+        passed: BROAD trial 21 starts occluded, and with its first 10 frames 3 mm off the
+        posterior's bound claimed them at 4.4x below the error (``benchmarks/failsafe.py``).
+        The fixes inside the window still count as tests (a body seen for less than the
+        window and then only sparsely is tested at its first frame after it)."""
+        return self._appeared and self._tested_fixes >= self.params.recent_fixes
 
     def _informative(self, t: float, fusion: KalmanFusion) -> bool:
         """True when the fix just fused at t (s) was predicted tightly enough to test the

@@ -1606,7 +1606,8 @@ class Tracker:
     def reset(self) -> None:
         """Forget the state and the stream history, as if newly constructed; the health
         counters keep counting (``health.resets`` counts the calls). The consistency monitor
-        starts afresh too: nothing is bridged until 5 fixes have tested the model again
+        starts afresh too: nothing is bridged until 5 fixes have tested the model again and
+        0.2 s have passed since the first fix after the reset
         (:attr:`kfusion.monitor.ConsistencyMonitor.model_tested`), so a gross configuration
         error is refused again at once, and a transient fault's evidence does not outlive the
         reset."""

@@ -110,10 +110,10 @@ def _early_gap(recording, after_fixes: int, frames: int = 30):
 def test_an_untested_model_does_not_bridge(after_fixes):
     """Gravity given with the wrong sign and a gap after the first 2-3 fixes: before, the gap
     was bridged 800-940 mm off with a 40-50 mm bound (no NIS could show it yet); now it is
-    lost until recent_fixes fixes have been compared with tight predictions. A correct
-    configuration bridges a gap 8 fixes after the first reacquisition_rival_s (fixes before
-    then do not test the model; of the next ones the first two or three predictions are loose:
-    the velocity is barely known yet)."""
+    lost until recent_fixes fixes have been compared with tight predictions (the first two or
+    three predictions are loose: the velocity is barely known yet). A correct configuration
+    bridges a gap 8 fixes after the first reacquisition_rival_s (the model is not tested
+    before a frame past that window: a body's first fixes may be off)."""
     simulation = simulate("random_reach", seed=0, duration=8.0, occlusions=None)
     truth = np.asarray(simulation.truth.position)
     recording = simulation.recording
