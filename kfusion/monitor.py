@@ -1150,7 +1150,8 @@ def held_at_frame(peak: float, variance: NDArray[np.float64]) -> tuple[float, fl
     an earlier frame of the same gap reported (0 at the gap's start): the factor
     ``peak / max_i variance_i`` when that exceeds 1 (the frame's covariance times it reaches
     the peak, which stays), else 1 and the frame's largest variance is the new peak; a
-    non-finite row neither takes nor sets it. Bounds that never shrink within a gap
+    non-finite row neither takes nor sets it, and a factor that would overflow (or a zero
+    variance) is not applied. Bounds that never shrink within a gap
     (:func:`kfusion.kalman.batch.held_in_gaps`): the batch filter and the Tracker both step
     the peak here, to the bit."""
     first, second, third = float(variance[0]), float(variance[1]), float(variance[2])
@@ -1158,7 +1159,8 @@ def held_at_frame(peak: float, variance: NDArray[np.float64]) -> tuple[float, fl
         return 1.0, peak  # not a bound: it neither takes nor sets the peak
     largest = max(first, second, third)
     if peak > largest:
-        return (peak / largest if largest > 0.0 else 1.0), peak
+        factor = peak / largest if largest > 0.0 else 1.0
+        return (factor if math.isfinite(factor) else 1.0), peak  # (never an inf bound)
     return 1.0, largest
 
 

@@ -447,13 +447,13 @@ class TrackerSnapshot:
     _state: Any = field(repr=False, compare=False)
 
 
-SNAPSHOT_FORMAT: Final = 3
+SNAPSHOT_FORMAT: Final = 4
 """Version of the state a :class:`TrackerSnapshot` holds (part of its configuration): raised
 whenever the estimator's or the monitor's state changes shape, so that a snapshot pickled by
 another version of kfusion is refused by :meth:`Tracker.restore` with a ValueError rather than
 restored and failing later (2: the monitor's sorted horizon rows and per-fix caches; 3: the
-time of the first fused frame, from which fixes test the model, and the running gap's peak
-variance)."""
+time of the first fused frame, from which fixes test the model; 4: the running gap's peak
+variance and last frames)."""
 
 _NUMERICAL_ERRORS: Final = (ArithmeticError, ValueError, np.linalg.LinAlgError)
 """What the estimator's maths may raise on overflowing numbers (math.sin(inf), singular S)."""
@@ -757,8 +757,11 @@ class _KalmanEstimator:
         self._fix_velocity: NDArray[np.float64] | None = None
         self._mocap_noise_variance = float(params.mocap_position_noise) ** 2  # R = this I, m^2
         # the largest per-axis variance (m^2) the frames of the running gap reported, 0 at a
-        # fix (kfusion.kalman.batch.held_in_gaps): no reading of the gap falls below it
+        # fix (kfusion.kalman.batch.held_in_gaps): no reading of the gap falls below it; and
+        # the horizons (s) of its last two bridged frames with the last one's time (s), for
+        # the scale of the bin a reading after a frame has crossed from (batch.apply_monitor)
         self._gap_peak = 0.0
+        self._gap_frames = _NO_GAP_FRAMES
 
     def predict(self, t: float, accelerometer: _Three, gyroscope: _Three) -> None:
         """A sample the tracker validated: t a finite float after the previous sample's stamp,
@@ -782,7 +785,7 @@ class _KalmanEstimator:
         self.monitor.mocap(t, position, outcome, self._fusion, prior)
         if outcome.accepted:
             self._fix_velocity = self._fusion.x[VELOCITY].copy()
-            self._gap_peak = 0.0
+            self._gap_peak, self._gap_frames = 0.0, _NO_GAP_FRAMES
         return _KALMAN_OUTCOMES[outcome.kind]
 
     def update_markers(self, t: float, observed: NDArray, body: NDArray
@@ -798,7 +801,7 @@ class _KalmanEstimator:
                            self._fusion, prior)
         if outcome.accepted:
             self._fix_velocity = self._fusion.x[VELOCITY].copy()
-            self._gap_peak = 0.0
+            self._gap_peak, self._gap_frames = 0.0, _NO_GAP_FRAMES
         return _KALMAN_OUTCOMES[outcome.kind], outcome.markers_used, outcome.markers_gated
 
     def read(self, t: float, trust_model: bool = True,
@@ -828,7 +831,8 @@ class _KalmanEstimator:
             return _Reading(position, step.velocity, 0.5 * (covariance + covariance.T),
                             np.sqrt(np.diag(covariance)))
         if step.time_since_fix > 0.0:  # in a gap: the monitor's scale, never below the peak
-            covariance = self._gap_covariance(t, step)
+            previous, latest_t, latest = self._gap_frames
+            covariance = self._gap_covariance(t, step, previous if t == latest_t else latest)
             factor, _ = held_at_frame(self._gap_peak, np.diag(covariance))
             if factor > 1.0:
                 covariance = covariance * factor
@@ -844,13 +848,19 @@ class _KalmanEstimator:
         std = np.sqrt(np.diag(covariance))
         return _Reading(step.position, step.velocity, 0.5 * (covariance + covariance.T), std)
 
-    def _gap_covariance(self, t: float, step: Any) -> NDArray[np.float64]:
+    def _gap_covariance(self, t: float, step: Any, frame_horizon: float
+                        ) -> NDArray[np.float64]:
         """The position covariance (3, 3) m^2 at t (s) in a gap, from the filter's estimate
-        ``step`` there: scaled by the monitor, plus its rivals' part, formed alone and added in
-        the batch recorder's order of operations (P + (d d^T + R), not (P + d d^T) + R): the
-        two agree to the bit (:func:`kfusion.kalman.batch.monitored_output`)."""
-        covariance = step.position_covariance * self.monitor.variance_scale(step.time_since_fix)
-        return covariance + self.monitor.cover_rivals(t, step.position, _ZERO_3X3)
+        ``step`` there: scaled by the monitor at its horizon or at ``frame_horizon`` (s, the
+        gap's last bridged frame before t; 0 if none), whichever scale is larger, plus its
+        rivals' part, formed alone and added in the batch recorder's order of operations
+        (P + (d d^T + R), not (P + d d^T) + R): the two agree to the bit
+        (:func:`kfusion.kalman.batch.monitored_output`)."""
+        monitor = self.monitor
+        scale = max(monitor.variance_scale(step.time_since_fix),
+                    monitor.variance_scale(frame_horizon))
+        covariance = step.position_covariance * scale
+        return covariance + monitor.cover_rivals(t, step.position, _ZERO_3X3)
 
     def note_gap_frame(self, t: float) -> None:
         """A frame at t (s) reported ``bridged``: the largest per-axis variance of its
@@ -860,8 +870,10 @@ class _KalmanEstimator:
             return  # read() shows no bridged position
         step = self._fusion.estimate(t)
         if step.time_since_fix > 0.0:
-            _, self._gap_peak = held_at_frame(self._gap_peak,
-                                              np.diag(self._gap_covariance(t, step)))
+            latest = self._gap_frames[2]
+            _, self._gap_peak = held_at_frame(
+                self._gap_peak, np.diag(self._gap_covariance(t, step, latest)))
+            self._gap_frames = (latest, t, step.time_since_fix)
 
     def finite(self) -> bool:
         kf = self._fusion._kf  # read only, without the public properties' copies
@@ -886,7 +898,8 @@ class _KalmanEstimator:
             self._monitor_state = monitor.state_snapshot()
         # the shared state is never changed: ConsistencyMonitor.restore copies it
         return (self._fusion.snapshot(), (self._monitor_state, monitor.shadow_snapshot()),
-                self._fix_velocity, self._gap_peak)  # never changed in place: shared safely
+                self._fix_velocity, self._gap_peak, self._gap_frames)  # shared safely: never
+        # changed in place
 
     def restore(self, snapshot: object) -> None:
         self._reckoning = self._monitor_state = None
@@ -894,6 +907,7 @@ class _KalmanEstimator:
         self.monitor.restore(snapshot[1])  # type: ignore[index]
         self._fix_velocity = snapshot[2]  # type: ignore[index]
         self._gap_peak = snapshot[3]  # type: ignore[index]
+        self._gap_frames = snapshot[4]  # type: ignore[index]
 
 
 _NO_POSE: Final[tuple[NDArray[np.float64], NDArray[np.float64]]] = (np.full(3, np.nan),
@@ -901,6 +915,10 @@ _NO_POSE: Final[tuple[NDArray[np.float64], NDArray[np.float64]]] = (np.full(3, n
 """(origin, quaternion) of a frame with no rigid-body pose (read only)."""
 for _array in _NO_POSE:
     _array.flags.writeable = False
+
+_NO_GAP_FRAMES: Final = (0.0, -math.inf, 0.0)
+"""(previous frame's horizon s, last frame's time s, its horizon s) of a gap with no bridged
+frame yet: both horizons its fix's, 0."""
 
 _ZERO_3X3: Final = np.zeros((3, 3))
 """Read-only zeros for :meth:`kfusion.monitor.ConsistencyMonitor.cover_rivals` (it returns a

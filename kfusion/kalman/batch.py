@@ -326,18 +326,54 @@ def position_covariances(P: NDArray[np.float64], output_matrix: NDArray[np.float
                      in zip(output_matrix, P, strict=True)]).reshape(-1, 3, 3)
 
 
+def horizon_bins(horizon_s: NDArray[np.float64], edges_s: tuple[float, ...]
+                 ) -> NDArray[np.intp]:
+    """Each horizon's (s) bin index (:func:`kfusion.monitor.horizon_bin`, vectorised)."""
+    return np.minimum(np.searchsorted(np.asarray(edges_s), horizon_s, side="left"),
+                      len(edges_s) - 1)
+
+
+def previous_frame_horizons(frames: NDArray[np.bool_], horizon_s: NDArray[np.float64]
+                            ) -> NDArray[np.float64]:
+    """(m,) s: for each row, the horizon of the last row of ``frames`` (the bridged rows the
+    monitor allows) before it in the same gap (the rows since a fix, ``horizon_s`` <= 0 at
+    one), 0 when there is none (the gap's fix)."""
+    gap = np.cumsum(horizon_s <= 0.0)  # the rows since the same fix share a number
+    index = np.flatnonzero(frames)
+    last = np.full(len(horizon_s), -1)
+    last[index] = index
+    last = np.maximum.accumulate(last)  # the latest frame at or before each row
+    before = np.concatenate([[-1], last[:-1]])  # ... strictly before it
+    found = before >= 0
+    same = found & (gap[np.maximum(before, 0)] == gap)
+    return np.where(same, horizon_s[np.maximum(before, 0)], 0.0)
+
+
 def apply_monitor(status: NDArray[np.str_], variance: NDArray[np.float64],
                   scale_tables: NDArray[np.float64], allowed: NDArray[np.bool_],
-                  horizon_s: NDArray[np.float64], edges_s: tuple[float, ...]
+                  horizon_s: NDArray[np.float64], edges_s: tuple[float, ...], *,
+                  forward: bool = True
                   ) -> tuple[NDArray[np.str_], NDArray[np.float64], NDArray[np.float64]]:
     """Bridged rows' variance (m, 3) m^2 times ``scale``, the row's monitor table (m, bins) at
-    its horizon (s since the fix), and ``lost`` where the monitor refused to bridge.
-    Returns (status, variance, per-row scale)."""
+    its horizon (s since the fix), and ``lost`` where the monitor refused to bridge. Returns
+    (status, variance, per-row scale).
+
+    ``forward`` (the filter, whose horizon grows through a gap): the larger of the scales at
+    the row's horizon and at the horizon of the gap's previous bridged row
+    (:func:`previous_frame_horizons`). Between two frames the horizon may cross a bin edge,
+    and a reading there (the Tracker at IMU rate) has the scale of the bin before the edge up
+    to it; the frame after the edge holds both, so that no reading between the frames is
+    wider than it (with :func:`held_in_gaps`, a gap's bound never shrinks). False (the
+    smoother's hold-out scales, at the distance to the nearest fix): the row's bin alone."""
     bridged = status == BRIDGED
-    index = np.minimum(np.searchsorted(np.asarray(edges_s), horizon_s, side="left"),
-                       len(edges_s) - 1)
-    scale = np.where(bridged, scale_beyond_evidence(
-        scale_tables[np.arange(len(status)), index], horizon_s, edges_s), 1.0)
+    rows = np.arange(len(status))
+    scale = scale_beyond_evidence(scale_tables[rows, horizon_bins(horizon_s, edges_s)],
+                                  horizon_s, edges_s)
+    if forward:
+        previous = previous_frame_horizons(bridged & allowed, horizon_s)
+        scale = np.maximum(scale, scale_beyond_evidence(
+            scale_tables[rows, horizon_bins(previous, edges_s)], previous, edges_s))
+    scale = np.where(bridged, scale, 1.0)
     scale = np.where(np.isfinite(scale), scale, 1.0)
     variance = variance * scale[:, None]
     status = np.where(bridged & ~allowed, LOST, status)
@@ -361,8 +397,8 @@ def held_in_gaps(status: NDArray[np.str_], variance: NDArray[np.float64],
     (:meth:`kfusion.tracker.Tracker.estimate`)."""
     result = np.array(variance, dtype=float)
     peak = 0.0
-    for row in np.flatnonzero((status == BRIDGED) | (horizon_s == 0.0)).tolist():
-        if horizon_s[row] == 0.0:  # a fix: the next gap starts from it
+    for row in np.flatnonzero((status == BRIDGED) | (horizon_s <= 0.0)).tolist():
+        if horizon_s[row] <= 0.0:  # a fix: the next gap starts from it
             peak = 0.0
             continue
         factor, peak = held_at_frame(peak, result[row])

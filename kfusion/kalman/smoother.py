@@ -643,7 +643,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                                               holdout.params))
         status, variance, _ = apply_monitor(status, variance, table, allowed,
                                             nearest_fix_distance(t, fixed),
-                                            holdout.params.horizon_edges_s)
+                                            holdout.params.horizon_edges_s, forward=False)
     # the forward pass's rival hypotheses, less its edge term at fixes: online no fix is known
     # to end before an occlusion, so the filter covers every fix while the edge test is on;
     # offline the hold-out knows which do and covers those (edge_holdout, above)
