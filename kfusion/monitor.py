@@ -1038,10 +1038,11 @@ class MonitorParameters:
             re-acquisition: on the BROAD trials with gaps cut every 1-2 s, the tracked rows'
             mean 99 % bound rose from 0.5-0.65 to 1.3-3.1 mm (median unchanged at 0.54-0.67,
             90th percentile 0.6-0.7 -> 3.1-4.6 mm; trials 01, 21, 24). A glitch longer than
-            this is not covered (0.5 s of 4 mm: 13.7 % of rows beyond the bound). The fixes
-            of the first ``reacquisition_rival_s`` after the first fused frame, which have no
-            prediction to keep, do not test the model (:attr:`ConsistencyMonitor.
-            model_tested`): until it is tested, a row is its fix alone.
+            this is not covered (0.5 s of 4 mm: 13.7 % of rows beyond the bound). A body's
+            first fixes have no prediction to keep: the model is not tested before a frame
+            ``reacquisition_rival_s`` after the first one (:attr:`ConsistencyMonitor.
+            model_tested`), and until then a row is its fix alone, within the window with the
+            offset such a fix may carry (:meth:`ConsistencyMonitor.fix_only`).
         cause_std_scale: std scale above which a cause other than the mocap is named.
         early_max_std_scale: the refusal limit while fewer than ``minimum_shadow_gaps`` gaps
             are in (thin evidence: the matched scale is then about the largest row seen,

@@ -897,9 +897,9 @@ class _KalmanEstimator:
         if self._monitor_state is None:
             self._monitor_state = monitor.state_snapshot()
         # the shared state is never changed: ConsistencyMonitor.restore copies it
+        # (the velocity array and the gap's tuple are never changed in place: shared safely)
         return (self._fusion.snapshot(), (self._monitor_state, monitor.shadow_snapshot()),
-                self._fix_velocity, self._gap_peak, self._gap_frames)  # shared safely: never
-        # changed in place
+                self._fix_velocity, self._gap_peak, self._gap_frames)
 
     def restore(self, snapshot: object) -> None:
         self._reckoning = self._monitor_state = None

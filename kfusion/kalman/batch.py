@@ -384,7 +384,7 @@ def held_in_gaps(status: NDArray[np.str_], variance: NDArray[np.float64],
                  horizon_s: NDArray[np.float64]) -> NDArray[np.float64]:
     """Per-axis variance (m, 3) m^2 with each bridged row's scaled up (:func:`held_at_frame`)
     to the largest per-axis variance of the bridged rows before it in the same gap (the rows
-    since the last fix, ``horizon_s`` = 0 at a fix), so that within a gap the bound never
+    since the last fix, ``horizon_s`` <= 0 at a fix), so that within a gap the bound never
     shrinks.
 
     Without a measurement the position error does not shrink either: it is continuous, and a
