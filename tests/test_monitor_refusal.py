@@ -170,7 +170,8 @@ def test_an_imu_that_slipped_before_a_reset_is_not_bridged_on(angle_deg, fixes):
 
 def test_a_reset_tests_the_model_again(clock_written_wrong):
     """After reset() the monitor starts afresh (a transient fault's evidence does not outlive
-    it), but nothing is bridged until 5 fixes have tested the model again."""
+    it), but nothing is bridged until the model is tested again (recent_fixes fixes, and a
+    frame reacquisition_rival_s after the first)."""
     recording, _ = clock_written_wrong
     tracker = Tracker.from_recording_info(recording.info)
     imu, mocap = recording.imu, recording.mocap
