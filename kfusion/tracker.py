@@ -622,9 +622,11 @@ class _Estimator(Protocol):
     def read(self, t: float, trust_model: bool = True,
              suspected_clock: tuple[float, float] | None = None) -> _Reading | None: ...
 
-    def note_gap_frame(self, t: float) -> None:
-        """A frame at t (s) just processed, reported ``bridged``: its bound joins the gap's
-        peak, below which no later reading of the gap falls."""
+    def note_gap_frame(self, t: float,
+                       suspected_clock: tuple[float, float] | None = None) -> None:
+        """A frame at t (s) just processed, reported ``bridged``: its bound (with the timing
+        term of a suspected clock offset, as :meth:`read`) joins the gap's peak, below which
+        no later reading of the gap falls."""
 
     def finite(self) -> bool: ...
 
@@ -699,7 +701,8 @@ class _BaselineEstimator:
         return _Reading(np.array(output.position, dtype=float), nan3, np.full((3, 3), np.nan),
                         nan3)
 
-    def note_gap_frame(self, t: float) -> None:
+    def note_gap_frame(self, t: float,
+                       suspected_clock: tuple[float, float] | None = None) -> None:
         pass  # no bound
 
     def finite(self) -> bool:
@@ -832,13 +835,11 @@ class _KalmanEstimator:
                             np.sqrt(np.diag(covariance)))
         if step.time_since_fix > 0.0:  # in a gap: the monitor's scale, never below the peak
             previous, latest_t, latest = self._gap_frames
-            covariance = self._gap_covariance(t, step, previous if t == latest_t else latest)
+            covariance = self._gap_covariance(t, step, previous if t == latest_t else latest,
+                                              suspected_clock)
             factor, _ = held_at_frame(self._gap_peak, np.diag(covariance))
             if factor > 1.0:
                 covariance = covariance * factor
-            if suspected_clock is not None and self._fix_velocity is not None:
-                change = self._fusion.x[VELOCITY] - self._fix_velocity
-                covariance = covariance + timing_error_covariance(*suspected_clock, change)
         else:  # at a fix: fused with a prediction the shadow gaps may have found worse
             covariance = self.monitor.at_fix(t, covariance)
             if suspected_clock is not None:  # and whose timing error is unknown
@@ -848,31 +849,40 @@ class _KalmanEstimator:
         std = np.sqrt(np.diag(covariance))
         return _Reading(step.position, step.velocity, 0.5 * (covariance + covariance.T), std)
 
-    def _gap_covariance(self, t: float, step: Any, frame_horizon: float
+    def _gap_covariance(self, t: float, step: Any, frame_horizon: float,
+                        suspected_clock: tuple[float, float] | None
                         ) -> NDArray[np.float64]:
-        """The position covariance (3, 3) m^2 at t (s) in a gap, from the filter's estimate
-        ``step`` there: scaled by the monitor at its horizon or at ``frame_horizon`` (s, the
-        gap's last bridged frame before t; 0 if none), whichever scale is larger, plus its
-        rivals' part, formed alone and added in the batch recorder's order of operations
-        (P + (d d^T + R), not (P + d d^T) + R): the two agree to the bit
-        (:func:`kfusion.kalman.batch.monitored_output`)."""
+        """The position covariance (3, 3) m^2 at t (s) in a gap, before the gap's peak is held,
+        from the filter's estimate ``step`` there: scaled by the monitor at its horizon or at
+        ``frame_horizon`` (s, the gap's last bridged frame before t; 0 if none), whichever
+        scale is larger, plus its rivals' part, formed alone and added in the batch recorder's
+        order of operations (P + (d d^T + R), not (P + d d^T) + R): the two agree to the bit
+        (:func:`kfusion.kalman.batch.monitored_output`); plus, with a suspected clock offset,
+        the timing error it implies (the Tracker's alone: the batch filter has no clock
+        watch)."""
         monitor = self.monitor
         scale = max(monitor.variance_scale(step.time_since_fix),
                     monitor.variance_scale(frame_horizon))
         covariance = step.position_covariance * scale
-        return covariance + monitor.cover_rivals(t, step.position, _ZERO_3X3)
+        covariance = covariance + monitor.cover_rivals(t, step.position, _ZERO_3X3)
+        if suspected_clock is not None and self._fix_velocity is not None:
+            change = self._fusion.x[VELOCITY] - self._fix_velocity
+            covariance = covariance + timing_error_covariance(*suspected_clock, change)
+        return covariance
 
-    def note_gap_frame(self, t: float) -> None:
+    def note_gap_frame(self, t: float,
+                       suspected_clock: tuple[float, float] | None = None) -> None:
         """A frame at t (s) reported ``bridged``: the largest per-axis variance of its
-        covariance (before any suspected clock's timing term, which the batch filter has not)
-        joins the gap's peak (:func:`kfusion.kalman.batch.held_at_frame`)."""
+        covariance (with the timing term of ``suspected_clock``, as :meth:`read` adds it)
+        joins the gap's peak (:func:`kfusion.monitor.held_at_frame`)."""
         if not self.monitor.bridging_allowed:
             return  # read() shows no bridged position
         step = self._fusion.estimate(t)
         if step.time_since_fix > 0.0:
             latest = self._gap_frames[2]
             _, self._gap_peak = held_at_frame(
-                self._gap_peak, np.diag(self._gap_covariance(t, step, latest)))
+                self._gap_peak,
+                np.diag(self._gap_covariance(t, step, latest, suspected_clock)))
             self._gap_frames = (latest, t, step.time_since_fix)
 
     def finite(self) -> bool:
@@ -1960,7 +1970,7 @@ class Tracker:
         book.status = status
         if stream == MOCAP_STREAM and status == BRIDGED:
             try:
-                self._estimator.note_gap_frame(t)
+                self._estimator.note_gap_frame(t, self._clock_watch.suspected)
             except _NUMERICAL_ERRORS:
                 pass  # estimate() finds the same reading unusable (lost)
         return outcome
