@@ -914,6 +914,12 @@ def horizon_bin(horizon_s: float, edges_s: tuple[float, ...]) -> int:
     return len(edges_s) - 1
 
 
+def horizon_bins(horizons_s: ArrayLike, edges_s: tuple[float, ...]) -> NDArray[np.intp]:
+    """:func:`horizon_bin` of each horizon (s), vectorised."""
+    return np.minimum(np.searchsorted(np.asarray(edges_s), np.asarray(horizons_s, dtype=float),
+                                      side="left"), len(edges_s) - 1)
+
+
 def fit_acceleration_error(horizon_s: ArrayLike, error: ArrayLike) -> NDArray[np.float64]:
     """Least-squares ``a`` (3,) m/s^2 of ``e(h) = e_0 + v h + a h^2 / 2`` over one shadow gap's
     rows (horizon (k,) s, error (k, 3) m); NaN with fewer than 4 rows."""
@@ -1313,11 +1319,7 @@ class HorizonScales:
 
     def scale_at(self, horizons_s: ArrayLike) -> NDArray[np.float64]:
         """Variance scale at each horizon (s)."""
-        table = self.scale_table()
-        edges = np.asarray(self.params.horizon_edges_s)
-        index = np.minimum(np.searchsorted(edges, np.asarray(horizons_s, dtype=float),
-                                           side="left"), len(edges) - 1)
-        return table[index]
+        return self.scale_table()[horizon_bins(horizons_s, self.params.horizon_edges_s)]
 
 
 class ConsistencyMonitor:

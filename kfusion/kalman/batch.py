@@ -30,6 +30,7 @@ from kfusion.monitor import (
     MonitorReport,
     fix_covariances_widened,
     held_at_frame,
+    horizon_bins,
     scale_beyond_evidence,
 )
 from kfusion.recording import Recording, on_mocap_clock, without_held_frames
@@ -324,13 +325,6 @@ def position_covariances(P: NDArray[np.float64], output_matrix: NDArray[np.float
     operations)."""
     return np.array([output_covariance(H, covariance) for H, covariance
                      in zip(output_matrix, P, strict=True)]).reshape(-1, 3, 3)
-
-
-def horizon_bins(horizon_s: NDArray[np.float64], edges_s: tuple[float, ...]
-                 ) -> NDArray[np.intp]:
-    """Each horizon's (s) bin index (:func:`kfusion.monitor.horizon_bin`, vectorised)."""
-    return np.minimum(np.searchsorted(np.asarray(edges_s), horizon_s, side="left"),
-                      len(edges_s) - 1)
 
 
 def previous_frame_horizons(frames: NDArray[np.bool_], horizon_s: NDArray[np.float64]
