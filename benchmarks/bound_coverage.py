@@ -24,8 +24,10 @@ gap rows inside ``r99``, ``o97`` at 97 % inside 3 sigma on every axis
 from its level: no choice of level can make a recording sharper than its oracle.
 
 Run: ``python benchmarks/bound_coverage.py [--quick] [--seeds N] [--no-monitor] [--oracle]
-[--only broad|simulated] [--match TEXT]`` (``--match``: only the recordings whose name contains
-TEXT, e.g. ``arm_lift`` or ``BROAD 24``). The full run takes about 25 s (measured on
+[--only broad|simulated] [--match TEXT] [--gap-seeds K]`` (``--match``: only the recordings
+whose name contains TEXT, e.g. ``arm_lift`` or ``BROAD 24``; ``--gap-seeds K``: instead, the
+BROAD trials' kalman rows with their gaps cut with seeds 0 to K-1, since a trial's numbers move
+with where its gaps fall). The full run takes about 25 s (measured on
 the shared 2-core machine).
 """
 
@@ -41,7 +43,7 @@ from numpy.typing import NDArray
 
 from kfusion.datasets import broad_trials
 from kfusion.evaluate import GapErrors, cut_gaps, gap_errors
-from kfusion.kalman import run_smoother
+from kfusion.kalman import run_filter, run_smoother
 from kfusion.monitor import MonitorParameters, chi2_quantile
 from kfusion.readers.broad import read_broad
 from kfusion.recording import Recording
@@ -73,10 +75,10 @@ class Scored:
     gaps: NDArray[np.bool_]
 
 
-def broad_sets(trials: int | None) -> list[Scored]:
+def broad_sets(trials: int | None, gap_seed: int = 0) -> list[Scored]:
     sets = []
     for path in broad_trials()[:trials]:
-        gapped = cut_gaps(read_broad(path, mocap_step=3), rng=np.random.default_rng(0),
+        gapped = cut_gaps(read_broad(path, mocap_step=3), rng=np.random.default_rng(gap_seed),
                           gap_range=(0.1, 0.3))
         sets.append(Scored(f"BROAD {path.stem[:24]}", gapped.recording, gapped.truth_position,
                            gapped.gap_mask))
@@ -130,6 +132,29 @@ def oracle_cells(kalman: GapErrors, smoother: GapErrors) -> str:
     return f" {k['o99']:.2f} / {k['o97']:.2f} | {s['o99']:.2f} / {s['o97']:.2f} |"
 
 
+def gap_seed_table(seeds: int, monitor: MonitorParameters | None) -> None:
+    """Print the kalman rows of every BROAD trial with its gaps cut with seeds 0 to
+    ``seeds - 1``: coverage range and bound / error per seed, and how many trial-seeds are
+    above 4 (a trial's numbers move with where its gaps fall)."""
+    results: dict[str, list[dict[str, float]]] = {}
+    for seed in range(seeds):
+        for scored in broad_sets(None, gap_seed=seed):
+            filtered = run_filter(scored.recording, monitor=monitor).result
+            results.setdefault(scored.name, []).append(
+                row(gap_errors(filtered, scored.truth, scored.gaps)))
+    print(f"| trial | kalman coverage, seeds 0-{seeds - 1} | kalman bound/error per seed |")
+    print("|---|---|---|")
+    every = [value for rows in results.values() for value in rows]
+    for name, rows in results.items():
+        coverages = [value["coverage"] for value in rows]
+        print(f"| {name} | {min(coverages):.3f}-{max(coverages):.3f} | "
+              + " ".join(f"{value['bound_over_error']:.2f}" for value in rows) + " |")
+    above = sum(value["bound_over_error"] > 4 for value in every)
+    print(f"| all {len(every)} | {min(value['coverage'] for value in every):.3f}-"
+          f"{max(value['coverage'] for value in every):.3f} | above 4: {above}, largest "
+          f"{max(value['bound_over_error'] for value in every):.2f} |")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true",
@@ -141,8 +166,14 @@ def main() -> int:
     parser.add_argument("--only", choices=("broad", "simulated"), default=None)
     parser.add_argument("--match", default=None,
                         help="only the recordings whose name contains this text")
+    parser.add_argument("--gap-seeds", type=int, default=None, metavar="K",
+                        help="instead: the BROAD trials' kalman rows with gaps cut with seeds "
+                             "0 to K-1 (about 20 s per seed)")
     args = parser.parse_args()
     monitor = None if args.no_monitor else MonitorParameters()
+    if args.gap_seeds is not None:
+        gap_seed_table(args.gap_seeds, monitor)
+        return 0
     sets: list[Scored] = []
     if args.only != "simulated":
         sets += broad_sets(2 if args.quick else None)
