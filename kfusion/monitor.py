@@ -25,31 +25,22 @@ an accelerometer scale error far off its datasheet, 3-sigma coverage 0.964 again
 bound reads the prediction scales; the refusal rule reads the innovation scales (where R is much
 larger than ``P_p`` a prediction scale is ill-determined: a fix's noise a little beyond its
 quantile asks for a large multiple of a small P). Scales are kept per horizon bin (time since the
-shadow's last fix) over the last ``memory`` rows, and a bin's scale is covariance matching at a
-quantile (:func:`quantile_matching_scale`):
+shadow's last fix) over the last ``memory`` rows, and the scale of a bin is covariance matching at
+a quantile (:func:`quantile_matching_scale`):
 
-    s_q(bin) = quantile_q({s_k in bin})
+    s(bin) = quantile_q({s_k in bin}),  q = matching_quantile
 
 clipped to ``[minimum_scale, inf)``. A scale below 1 also needs enough rows in its bin for the
 quantile to be known (:func:`rows_to_shrink`): the largest of n rows is below the true q-quantile
-with probability q^n, so with fewer than ``ln(1/2) / ln(q)`` rows (46 at q = 0.985, 139 at 0.995)
-even the largest row more likely than not understates it, and the bin's scale stays at least 1
-(measured on the first 30 s of BROAD trial 21: hold-out bins of 20-60 rows gave smoother scales of
-0.12-0.16 and 36 % of its bridged rows beyond the 99 % bound). A real gap's position covariance h s
-after its fix at t_f is reported as
-
-    max(s_settled(bin(h)), s_recent(t_f), s_NIS) P
-
-(beyond the last bin, the last bin's scale): ``s_settled`` the bin's scale at ``settled_quantile``
-(the long run's level), ``s_recent`` the largest scale any shadow row needed in the shadow gaps
-that ended within ``recent_s`` before t_f, at any horizon, and at least 1 while they are fewer than
-``recent_rows`` rows (:func:`recent_scale`: errors on real recordings come in episodes, which the
-recent level follows within a shadow gap and forgets within ``recent_s``), and ``s_NIS = mean NIS
-/ 3`` when the windowed NIS test fails high (else no constraint): the bound grows as the shadow
-gaps showed it must, not only as the profile predicts, and shrinks (down to ``minimum_scale``)
-where the profile is pessimistic. Until ``minimum_shadow_gaps`` gaps have been seen the scale is at
-least 1 (the profile). The refusal rule reads the innovation scales at ``matching_quantile``, and
-a fused fix's widening (:meth:`ConsistencyMonitor.at_fix`) the prediction scales' bin at it.
+with probability q^n, so with fewer than ``ln(1/2) / ln(q)`` rows (139 at q = 0.995) even the
+largest row more likely than not understates it, and the bin's scale stays at least 1 (measured on
+the first 30 s of BROAD trial 21: hold-out bins of 20-60 rows gave smoother scales of 0.12-0.16
+and 36 % of its bridged rows beyond the 99 % bound). A real gap's position covariance is reported as
+``max(s(bin(h)), s_NIS) P`` at horizon h (beyond the last bin, the last bin's scale), where
+``s_NIS = mean NIS / 3`` when the windowed NIS test fails high (else no constraint): the bound
+grows as the shadow gaps showed it must, not only as the profile predicts, and shrinks (down to
+``minimum_scale``) where the profile is pessimistic. Until ``minimum_shadow_gaps`` gaps have been
+seen the scale is at least 1 (the profile).
 
 When the standard-deviation scale needed anywhere exceeds ``max_std_scale`` the monitor refuses
 to bridge: outputs in a gap are ``lost``. The IMU model is then not trusted at the fixes either
@@ -985,10 +976,6 @@ def bridging_allowed(std_scale: float, shadow_gaps: int, params: MonitorParamete
 # ---------------------------------------------------------------------------------------------
 
 
-_QUANTILES: Final = ("matching_quantile", "settled_quantile")
-"""MonitorParameters fields that may be 1 (the largest row)."""
-
-
 @dataclass(frozen=True)
 class MonitorParameters:
     """Settings of the consistency monitor.
@@ -1006,31 +993,11 @@ class MonitorParameters:
             2000 rows are the last 200-400 gaps, 2-4 minutes). Long enough that the evidence
             spans the recording's fast and slow parts (with 400, a gap in fast motion after a
             quiet spell got the quiet spell's scale: BROAD kalman coverage 0.965-0.973 on the
-            fast trials, 0.971-0.982 with 2000, measured with the former rule); a model that
-            gets worse shows in the bound within one shadow gap (the recent level,
-            ``recent_s``), and an episode of more than ``(1 - settled_quantile) memory`` = 30
-            rows of a bin stays in the settled level for as long as its rows are remembered.
+            fast trials, 0.971-0.982 with 2000); a model that gets worse still shows within
+            ``(1 - matching_quantile) memory`` = 10 rows, one or two shadow gaps.
         confidence: the bound the scale is matched at (chi-square quantile of the radius).
-        matching_quantile: quantile of the rows' required scales that the refusal rule's scale
-            (the shadow innovations'), a fused fix's widening and the edge offset match: a
+        matching_quantile: quantile of the rows' required scales that the scale matches: a
             little above ``confidence``, since the next gap is not one of the shadow gaps.
-        settled_quantile: quantile of each bin's remembered rows (``memory``) that the bound's
-            scale matches at least: the long run's level, which covers the first gap of an
-            episode of larger errors (below).
-        recent_s: the bound's scale is also at least the largest scale a shadow row needed in
-            the shadow gaps that ended within this long (s) before the gap's fix, at any
-            horizon: the recent level. Errors on real recordings come in episodes (on BROAD
-            trial 24, 15 s spells of taps in which 5-10 % of the shadow rows need more than
-            0.5, and between them none): the former rule, each bin's rows at
-            ``matching_quantile`` alone, carried each episode's scale into the calm that
-            followed for minutes. Measured with ``benchmarks/bound_coverage.py``'s BROAD gaps
-            cut with seeds 0-4 (35 trial-seeds), the kalman median bound / error was above 4
-            on 25 of them (up to 7.3) and the 3-sigma coverage 0.982-1.0; with the settled
-            quantile 0.985 and the recent level over 5 s, above 4 on 10 (up to 5.2; trial 24,
-            and trial 01 on some seeds) and coverage 0.975-1.0. Settled at 0.98 (5 s): 6 above
-            4, coverage down to 0.968; at 0.99: 21 above 4; a recent window of 7.5-10 s: 12-16.
-        recent_rows: with fewer shadow rows than this in the recent window (after a long
-            occlusion, or at the start), the recent level is at least 1 (the profile's).
         minimum_shadow_gaps: gaps needed before the scale may fall below 1.
         minimum_scale: smallest variance scale (the profile may be pessimistic, but only so far).
         max_std_scale: beyond this standard-deviation scale the monitor refuses to bridge. A
@@ -1128,9 +1095,6 @@ class MonitorParameters:
     memory: int = 2000
     confidence: float = 0.99
     matching_quantile: float = 0.995
-    settled_quantile: float = 0.985
-    recent_s: float = 5.0
-    recent_rows: int = 30
     minimum_shadow_gaps: int = 10
     minimum_scale: float = 0.04
     max_std_scale: float = 2.0
@@ -1153,8 +1117,7 @@ class MonitorParameters:
 
     def __post_init__(self) -> None:
         positive = ("shadow_window_s", "shadow_period_s", "minimum_scale", "max_std_scale",
-                    "holdout_max_std_scale", "settle_after_s", "early_max_std_scale", "edge_s",
-                    "recent_s")
+                    "holdout_max_std_scale", "settle_after_s", "early_max_std_scale", "edge_s")
         for name in positive:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -1166,15 +1129,14 @@ class MonitorParameters:
                 raise ValueError(f"MonitorParameters.{name}: expected a finite number >= 0, "
                                  f"got {value!r}")
         for name in ("nis_window", "memory", "minimum_shadow_gaps", "clock_gaps",
-                     "recent_fixes", "gap_end_window", "block_fixes", "recent_rows"):
+                     "recent_fixes", "gap_end_window", "block_fixes"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"MonitorParameters.{name}: expected an integer >= 1, "
                                  f"got {value!r}")
-        for name in ("nis_probability", "confidence", "matching_quantile", "settled_quantile",
-                     "step_probability"):
+        for name in ("nis_probability", "confidence", "matching_quantile", "step_probability"):
             value = getattr(self, name)
-            if not 0.0 < value < 1.0 and not (name in _QUANTILES and value == 1.0):
+            if not 0.0 < value < 1.0 and not (name == "matching_quantile" and value == 1.0):
                 raise ValueError(f"MonitorParameters.{name}: expected a probability in (0, 1), "
                                  f"got {value!r}")
         for name in ("horizon_edges_s", "holdout_edges_s"):
@@ -1209,35 +1171,6 @@ def held_at_frame(peak: float, variance: NDArray[np.float64]) -> tuple[float, fl
     return 1.0, largest
 
 
-def recent_gaps(recent: tuple[tuple[float, float, int], ...], end_s: float,
-                scales: NDArray[np.float64], recent_s: float
-                ) -> tuple[tuple[float, float, int], ...]:
-    """``recent`` with a shadow gap whose last row is at ``end_s`` s and whose rows needed the
-    prediction scales ``scales`` (k,) added as (end s, largest finite scale (NaN if none),
-    finite rows), and the gaps that ended more than ``recent_s`` before it dropped (no later
-    fix can reach them: the fixes' times only grow). A new tuple."""
-    finite = scales[np.isfinite(scales)]
-    largest = float(np.max(finite)) if len(finite) else math.nan
-    kept = tuple(gap for gap in recent if gap[0] >= end_s - recent_s)
-    return kept + ((end_s, largest, len(finite)),)
-
-
-def recent_scale(recent: tuple[tuple[float, float, int], ...], reference_s: float,
-                 params: MonitorParameters) -> float:
-    """The recent level for a gap from a fix at ``reference_s`` s: the largest prediction scale
-    a row of the shadow gaps in ``recent`` (:func:`recent_gaps`) that ended within
-    ``recent_s`` before the fix needed, at any horizon; at least 1 while they hold fewer than
-    ``recent_rows`` rows (thin recent evidence: the profile's). Non-finite rows are left to
-    the settled level and the refusal rule (:class:`HorizonScales` counts them)."""
-    rows, largest = 0, 0.0
-    for end, scale, count in recent:
-        if reference_s - params.recent_s <= end <= reference_s:
-            rows += count
-            if scale > largest:  # (False for NaN)
-                largest = scale
-    return largest if rows >= params.recent_rows else max(largest, 1.0)
-
-
 @dataclass(frozen=True)
 class MonitorReport:
     """What the monitor found (health / diagnostics).
@@ -1259,10 +1192,6 @@ class MonitorReport:
         edge_offset_std_m: 1-sigma per axis (m) of an offset on the fixes before a gap that the
             last real gaps' ends showed (:meth:`ConsistencyMonitor.cover_rivals`; 0 while they
             agree with their predictions).
-        recent_variance_scale: the recent level a gap from the last fix reads
-            (:func:`recent_scale`); the bound's scale in a bin is the larger of it and the
-            bin's settled level (``settled_quantile`` of its rows), where ``variance_scale``
-            is the bin's rows at ``matching_quantile``.
     """
 
     nis: NisTest
@@ -1275,7 +1204,6 @@ class MonitorReport:
     clock_offset_std_s: float = math.nan
     steps: int = 0
     edge_offset_std_m: float = 0.0
-    recent_variance_scale: float = math.nan
 
     def as_dict(self) -> dict[str, object]:
         """Plain dict for health output."""
@@ -1284,8 +1212,7 @@ class MonitorReport:
                 "std_scale": self.std_scale, "bridging_allowed": self.bridging_allowed,
                 "suspected_cause": self.suspected_cause, "clock_offset_s": self.clock_offset_s,
                 "clock_offset_std_s": self.clock_offset_std_s, "steps": self.steps,
-                "edge_offset_std_m": self.edge_offset_std_m,
-                "recent_variance_scale": self.recent_variance_scale}
+                "edge_offset_std_m": self.edge_offset_std_m}
 
 
 class HorizonScales:
@@ -1295,9 +1222,7 @@ class HorizonScales:
     hold-out (:func:`kfusion.kalman.smoother.run_smoother`). Besides each bin's rows in arrival
     order (the last ``memory``), it keeps their finite values sorted and counts the infinite
     ones, so that a bin's matched scale (:func:`quantile_matching_scale` of its rows) is read
-    without sorting the rows again: a monitored run matches the scales after every shadow gap.
-    A table is matched at ``params.matching_quantile`` unless another quantile is asked for
-    (the online monitor's bound reads ``settled_quantile``)."""
+    without sorting the rows again: a monitored run matches the scales after every shadow gap."""
 
     def __init__(self, params: MonitorParameters) -> None:
         self.params = params
@@ -1306,9 +1231,8 @@ class HorizonScales:
         self._sorted: list[list[float]] = [[] for _ in range(bins)]  # each bin's finite rows
         self._unbounded = [0] * bins  # each bin's infinite rows
         self.gaps = 0
-        # cache of scale_table() per quantile (read-only arrays, shared by copies)
-        self._tables: dict[float, NDArray[np.float64]] = {}
-        self._largest = math.nan  # the largest entry of the matching_quantile table, with it
+        self._table: NDArray[np.float64] | None = None  # cache of scale_table()
+        self._largest = math.nan  # its largest entry, with it
 
     def add_gap(self, horizons_s: ArrayLike, required: ArrayLike) -> None:
         """One gap's rows: horizon (k,) s and the scale each row needed (k,)."""
@@ -1327,7 +1251,7 @@ class HorizonScales:
             elif not math.isnan(value):
                 bisect.insort(self._sorted[index], value)
         self.gaps += 1
-        self._tables = {}
+        self._table = None
 
     def _forget(self, index: int, value: float) -> None:
         """Drop ``value``, a row of bin ``index`` leaving the memory, from its sorted rows or
@@ -1340,24 +1264,21 @@ class HorizonScales:
 
     def copy(self) -> HorizonScales:
         """An independent copy (the rows are floats). The scale table is computed first and
-        shared (it is read-only), with any other quantile's already computed, so a copy
-        restored again and again does not recompute them."""
+        shared (it is read-only), so a copy restored again and again does not recompute it."""
         other = HorizonScales.__new__(HorizonScales)
         other.params = self.params
         other._rows = [deque(rows, maxlen=rows.maxlen) for rows in self._rows]
         other._sorted = [list(rows) for rows in self._sorted]
         other._unbounded = list(self._unbounded)
         other.gaps = self.gaps
-        self.scale_table()
-        other._tables = dict(self._tables)
+        other._table = self.scale_table()
         other._largest = self._largest
         return other
 
-    def variance_scales(self, quantile: float | None = None) -> tuple[float, ...]:
+    def variance_scales(self) -> tuple[float, ...]:
         """Matched variance scale per bin (NaN where the bin has no evidence), before limits:
-        :func:`quantile_matching_scale` of each bin's rows at ``quantile`` (None:
-        ``matching_quantile``), read from its sorted rows."""
-        confidence = self.params.matching_quantile if quantile is None else quantile
+        :func:`quantile_matching_scale` of each bin's rows, read from its sorted rows."""
+        confidence = self.params.matching_quantile
         scales = []
         for ordered, unbounded in zip(self._sorted, self._unbounded, strict=True):
             count = len(ordered) + unbounded
@@ -1369,36 +1290,30 @@ class HorizonScales:
                 scales.append(linear_quantile(ordered, confidence))
         return tuple(scales)
 
-    def scale_table(self, quantile: float | None = None) -> NDArray[np.float64]:
-        """(bins,) variance scale applied per bin: the matched scale at ``quantile`` (None:
-        ``matching_quantile``), at least ``minimum_scale`` (at least 1 before
-        ``minimum_shadow_gaps`` gaps, and in a bin with fewer rows than
-        :func:`rows_to_shrink` at that quantile); a bin without evidence takes the largest
-        scale of the bins before it (1 if none)."""
+    def scale_table(self) -> NDArray[np.float64]:
+        """(bins,) variance scale applied per bin: the matched scale, at least ``minimum_scale``
+        (at least 1 before ``minimum_shadow_gaps`` gaps, and in a bin with fewer rows than
+        :func:`rows_to_shrink`); a bin without evidence takes the largest scale of the bins
+        before it (1 if none)."""
+        if self._table is not None:
+            return self._table
         params = self.params
-        quantile = params.matching_quantile if quantile is None else quantile
-        cached = self._tables.get(quantile)
-        if cached is not None:
-            return cached
         floor = params.minimum_scale if self.gaps >= params.minimum_shadow_gaps else 1.0
-        enough = rows_to_shrink(quantile)
+        enough = rows_to_shrink(params.matching_quantile)
         table = []
         previous = floor
-        for scale, rows in zip(self.variance_scales(quantile), self._rows, strict=True):
+        for scale, rows in zip(self.variance_scales(), self._rows, strict=True):
             bin_floor = floor if len(rows) >= enough else max(floor, 1.0)
             value = previous if math.isnan(scale) else max(scale, bin_floor)
             table.append(value)
             previous = max(previous, value)
-        result = np.asarray(table, dtype=float)
-        result.flags.writeable = False
-        self._tables[quantile] = result
-        if quantile == params.matching_quantile:
-            self._largest = max(table)
-        return result
+        self._table = np.asarray(table, dtype=float)
+        self._table.flags.writeable = False
+        self._largest = max(table)
+        return self._table
 
     def largest_scale(self) -> float:
-        """The largest scale of :meth:`scale_table` at ``matching_quantile`` (its entries are
-        never NaN)."""
+        """The largest scale of :meth:`scale_table` (its entries are never NaN)."""
         self.scale_table()
         return self._largest
 
@@ -1421,12 +1336,7 @@ class ConsistencyMonitor:
         self.params = params if params is not None else MonitorParameters()
         self._shadow = shadow
         self._gravity = np.asarray(gravity, dtype=float)
-        # the shadow rows' prediction scales, per bin (the bound's long run level reads them
-        # at settled_quantile, the fixes' widening at matching_quantile), and per shadow gap
-        # closed in the last recent_s (time of its last row s, its rows' largest finite scale,
-        # how many there were: the recent level; a tuple, shared, not copied, by snapshots)
-        self._scales = HorizonScales(self.params)
-        self._recent: tuple[tuple[float, float, int], ...] = ()
+        self._scales = HorizonScales(self.params)  # the shadow rows' prediction scales
         self._innovation_scales = HorizonScales(self.params)  # their innovation scales
         self._nis: deque[float] = deque(maxlen=self.params.nis_window)
         # the block test (block_nis): the running block's sums of y (3,) m and S (3, 3) m^2 and
@@ -1451,8 +1361,6 @@ class ConsistencyMonitor:
         # them (_copy_state).
         self._nis_window_value: tuple[float, float] | None = None  # _nis_window()
         self._scale_table_value: NDArray[np.float64] | None = None  # scale_table(), read-only
-        # (the last fix's time s, _shadow_table() for a gap from it), read-only
-        self._shadow_table_value: tuple[float, NDArray[np.float64]] | None = None
         self._std_scale_value: float | None = None  # _std_scale()
         self._bridging_value: bool | None = None  # bridging_allowed
         self._widening_value: tuple[float, float] | None = None  # _fix_widening() at the fix
@@ -1564,7 +1472,6 @@ class ConsistencyMonitor:
             elif math.isfinite(self._fix_horizon):
                 self._fix_period = self._fix_horizon
             self._last_fix = (t, np.array(position, dtype=float))
-            self._scale_table_value = None  # its recent level is read from this fix
             if self._gated_fix is not None and prior is not None \
                     and np.isfinite(prior.position).all():
                 # fused after gated fixes: the prediction it replaced stays a rival hypothesis
@@ -1724,17 +1631,13 @@ class ConsistencyMonitor:
     def _gap_end(self, position: NDArray[np.float64], prior: FilterEstimate) -> None:
         """Keep the evidence of an accepted fix ending a real gap of ``_fix_horizon`` s (at most
         ``max_bridge_s``: a longer gap was not bridged) against the prediction ``prior``, with
-        its covariance as the shadow gaps and the NIS window explain it: ``S = s P- + R``, s
-        the larger of the bin's shadow rows at ``matching_quantile`` and the NIS window's
-        factor at that horizon (what they already explain is not an edge offset; the bound's
-        own scale, from the settled and recent levels, is mostly lower, and reading it here
-        made the edge test fire less: a smoothed recording with offsets on the 3 fixes before
-        each occlusion went from 0.4 % to 1.2 % of its rows beyond the 99 % bound). Keeps its
-        NIS ``y^T S^-1 y`` and the edge offset variance it needed (:func:`edge_variance_needed`),
-        and switches the edge term on when the mean NIS of the window fails the windowed test
-        high, off when it falls back to its expectation (3) or below. Nothing is kept before
-        the fixes' period is known (two fixes in a run): the offset's shape is not known
-        then."""
+        the prediction's covariance as the bound had it before this evidence: ``S = s P- + R``,
+        s the shadow gaps' and the NIS window's scale at that horizon (what they already
+        explain is not an edge offset). Keeps its NIS ``y^T S^-1 y`` and the edge offset
+        variance it needed (:func:`edge_variance_needed`), and switches the edge term on when
+        the mean NIS of the window fails the windowed test high, off when it falls back to its
+        expectation (3) or below. Nothing is kept before the fixes' period is known (two fixes
+        in a run): the offset's shape is not known then."""
         shape = self._edge_shape(self._fix_horizon)
         if shape <= 0 or not self._fix_horizon <= self._shadow.params.max_bridge_s:
             return
@@ -1789,15 +1692,13 @@ class ConsistencyMonitor:
 
     def _close(self) -> None:
         """End the running shadow gap and keep its evidence."""
-        if self._rows_h and self._start is not None:  # (rows come only while one runs)
+        if self._rows_h:
             innovation_scales, scales = shadow_rows_scales(
                 np.array(self._rows_error), np.array(self._rows_covariance),
                 self._rows_noise, self.params.confidence)
             # a new HorizonScales, never the one a snapshot may share (_copy_state)
             self._scales = self._scales.copy()
             self._scales.add_gap(self._rows_h, scales)
-            self._recent = recent_gaps(self._recent, self._start + self._rows_h[-1], scales,
-                                       self.params.recent_s)
             self._innovation_scales = self._innovation_scales.copy()
             self._innovation_scales.add_gap(self._rows_h, innovation_scales)
             self._forget_derived(nis=False)
@@ -1829,32 +1730,17 @@ class ConsistencyMonitor:
 
     def scale_table(self) -> NDArray[np.float64]:
         """(bins,) variance scale per horizon bin (:meth:`variance_scale` of each bin): the
-        shadow gaps' scale (:meth:`_shadow_table`) and the NIS matching factor (read-only,
-        computed once per change of the evidence or of the last fix) and, in a gap whose last
-        fix was fused while recent innovations showed the predictions wrong (``settle_s``),
-        their factor."""
+        shadow gaps' scale and the NIS matching factor (read-only, computed once per change of
+        the evidence) and, in a gap whose last fix was fused while recent innovations showed
+        the predictions wrong (``settle_s``), their factor."""
         if self._scale_table_value is None:
-            table = np.maximum(self._shadow_table(),
+            table = np.maximum(self._scales.scale_table(),
                                max(self._nis_scale(), self._gap_end_scale()))
             table.flags.writeable = False
             self._scale_table_value = table
         if self._last_fix is not None and self._last_fix[0] <= self._settle_until:
             return np.maximum(self._scale_table_value, self._settle_factor)
         return self._scale_table_value
-
-    def _shadow_table(self) -> NDArray[np.float64]:
-        """(bins,) the shadow gaps' variance scale per horizon bin for a gap from the last fix
-        (read-only): each bin's settled level (``settled_quantile`` of its remembered rows,
-        with :meth:`HorizonScales.scale_table`'s limits) and at least the recent level
-        (:func:`recent_scale` of the shadow gaps that ended within ``recent_s`` before that
-        fix)."""
-        reference = -math.inf if self._last_fix is None else self._last_fix[0]
-        if self._shadow_table_value is None or self._shadow_table_value[0] != reference:
-            table = np.maximum(self._scales.scale_table(self.params.settled_quantile),
-                               recent_scale(self._recent, reference, self.params))
-            table.flags.writeable = False
-            self._shadow_table_value = (reference, table)
-        return self._shadow_table_value[1]
 
     def _nis_scale(self) -> float:
         """The NIS matching factor when the windowed test says the innovations are too large,
@@ -1892,7 +1778,7 @@ class ConsistencyMonitor:
         change of them)."""
         if nis:
             self._nis_window_value = None
-        self._widening_value = self._shadow_table_value = None
+        self._widening_value = None
         self._scale_table_value = self._std_scale_value = self._bridging_value = None
 
     def fix_only(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
@@ -2168,10 +2054,7 @@ class ConsistencyMonitor:
                              bridging_allowed=self.bridging_allowed, suspected_cause=cause,
                              clock_offset_s=math.nan if clock is None else clock[0],
                              clock_offset_std_s=math.nan if clock is None else clock[1],
-                             steps=self._step_count, edge_offset_std_m=math.sqrt(edge),
-                             recent_variance_scale=recent_scale(
-                                 self._recent, -math.inf if self._last_fix is None
-                                 else self._last_fix[0], self.params))
+                             steps=self._step_count, edge_offset_std_m=math.sqrt(edge))
 
 
 _NO_Y: Final = np.zeros(3)

@@ -1,4 +1,5 @@
-"""The coverage benchmark's oracle sharpness (``bound_coverage.py --oracle``), by hand."""
+"""The coverage benchmark's oracle sharpness (``bound_coverage.py --oracle``) and its count of rows
+beyond the 99 % radius, by hand."""
 
 from __future__ import annotations
 
@@ -54,3 +55,16 @@ def test_oracle_sharpness_of_a_calibrated_gaussian():
     assert oracle["o99"] == pytest.approx(expected, rel=0.02)
     empty = load_benchmark().oracle_sharpness(GapErrors(np.empty((0, 3)), np.empty((0, 3)), 0))
     assert math.isnan(empty["o99"]) and math.isnan(empty["o97"])
+
+
+def test_beyond_r99_counts_the_rows_outside_the_99_percent_radius():
+    # unit sigma; errors along x of 1, 3.3 and 3.4 (r99 = 3.368): one row beyond the radius,
+    # two beyond 3 sigma on x, so the 3-sigma coverage is 1/3
+    errors = GapErrors(np.array([[1.0, 0, 0], [3.3, 0, 0], [3.4, 0, 0]]), np.ones((3, 3)), 0)
+    row = load_benchmark().row(errors)
+    assert row["beyond99"] == pytest.approx(1 / 3)
+    assert row["coverage"] == pytest.approx(1 / 3)
+    # a row inside 3 sigma on every axis can be beyond the radius: (2.9, 2.9, 0) has |e| 4.1
+    diagonal = GapErrors(np.array([[2.9, 2.9, 0.0]]), np.ones((1, 3)), 0)
+    assert load_benchmark().row(diagonal)["beyond99"] == 1.0
+    assert load_benchmark().row(diagonal)["coverage"] == 1.0
