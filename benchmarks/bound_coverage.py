@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from kfusion.datasets import broad_trials
+from kfusion.datasets import broad_directory, broad_trials
 from kfusion.evaluate import GapErrors, cut_gaps, gap_errors
 from kfusion.kalman import run_filter, run_smoother
 from kfusion.monitor import MonitorParameters, chi2_quantile
@@ -134,10 +134,17 @@ def oracle_cells(kalman: GapErrors, smoother: GapErrors) -> str:
     return f" {k['o99']:.2f} / {k['o97']:.2f} | {s['o99']:.2f} / {s['o97']:.2f} |"
 
 
-def gap_seed_table(seeds: int, monitor: MonitorParameters | None) -> None:
+def gap_seed_table(seeds: int, monitor: MonitorParameters | None) -> int:
     """Print the kalman rows of every BROAD trial with its gaps cut with seeds 0 to
-    ``seeds - 1``: coverage range and bound / error per seed, and how many trial-seeds are
-    above 4 (a trial's numbers move with where its gaps fall)."""
+    ``seeds - 1``: coverage range, the largest fraction beyond r99 and the bound / error per
+    seed, and over all trial-seeds the fraction beyond r99 pooled and how many are above 4 (a
+    trial's numbers move with where its gaps fall). Returns the exit status (2 without BROAD
+    trials)."""
+    try:
+        broad_directory()
+    except ValueError as error:
+        print(f"bound_coverage.py --gap-seeds: {error}", file=sys.stderr)
+        return 2
     results: dict[str, list[dict[str, float]]] = {}
     errors: list[GapErrors] = []
     for seed in range(seeds):
@@ -160,6 +167,15 @@ def gap_seed_table(seeds: int, monitor: MonitorParameters | None) -> None:
           f"{max(value['beyond99'] for value in every):.2%} (pooled "
           f"{row(GapErrors.concatenate(errors))['beyond99']:.2%}) | above 4: {above}, largest "
           f"{max(value['bound_over_error'] for value in every):.2f} |")
+    return 0
+
+
+def positive_int(text: str) -> int:
+    """An argparse type: an integer >= 1."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
+    return value
 
 
 def main() -> int:
@@ -173,17 +189,24 @@ def main() -> int:
     parser.add_argument("--only", choices=("broad", "simulated"), default=None)
     parser.add_argument("--match", default=None,
                         help="only the recordings whose name contains this text")
-    parser.add_argument("--gap-seeds", type=int, default=None, metavar="K",
+    parser.add_argument("--gap-seeds", type=positive_int, default=None, metavar="K",
                         help="instead: the BROAD trials' kalman rows with gaps cut with seeds "
-                             "0 to K-1 (about 20 s per seed)")
+                             "0 to K-1 (about 7 s per seed)")
     args = parser.parse_args()
     monitor = None if args.no_monitor else MonitorParameters()
     if args.gap_seeds is not None:
-        gap_seed_table(args.gap_seeds, monitor)
-        return 0
+        return gap_seed_table(args.gap_seeds, monitor)
     sets: list[Scored] = []
     if args.only != "simulated":
-        sets += broad_sets(2 if args.quick else None)
+        try:
+            broad_directory()
+        except ValueError as error:
+            if args.only == "broad":
+                print(f"bound_coverage.py: {error}", file=sys.stderr)
+                return 2
+            print(f"bound_coverage.py: simulated recordings only: {error}", file=sys.stderr)
+        else:
+            sets += broad_sets(2 if args.quick else None)
     if args.only != "broad":
         sets += simulated_sets(1 if args.quick else args.seeds,
                                SCENARIOS[:2] if args.quick else SCENARIOS)
