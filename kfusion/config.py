@@ -199,7 +199,7 @@ class SimulateData(_Strict):
     scenario: str = Field(description="simulator scenario (kfusion.simulate.SCENARIOS)")
     imu: str = Field(default="mpu9255", description="IMU profile (kfusion.profiles)")
     occlusions: OcclusionsConfig = Field(default=OcclusionsConfig())
-    duration: float | None = Field(default=None, gt=0, le=3600,
+    duration: float | None = Field(default=None, gt=0, le=3600,  # simulate.MAX_DURATION
                                    description="seconds (null: the scenario's own length)")
 
     @field_validator("scenario")

@@ -198,7 +198,12 @@ def _syntax_error(file: str | Path, error: yaml.YAMLError) -> YamlError:
 def load_yaml_text(text: str, file: str | Path) -> Any:
     """The data in YAML ``text`` (safe types only), bounded as described in the module
     docstring; ``file`` names the source in errors. Raises :class:`YamlError`."""
-    loader = _BoundedLoader(text)
+    try:
+        # (the reader checks the characters as it is built: a raw control character raises
+        # a ReaderError here)
+        loader = _BoundedLoader(text)
+    except yaml.YAMLError as error:
+        raise _syntax_error(file, error) from None
     try:
         node = loader.get_single_node()  # type: ignore[no-untyped-call]
         if node is None:
@@ -242,6 +247,20 @@ def _new_file_mode() -> int:
     umask = os.umask(0)
     os.umask(umask)
     return 0o666 & ~umask
+
+
+def refuse_overwriting(out: str | Path, inputs: list[Path], option: str = "--out") -> None:
+    """ValueError when ``out`` is one of the existing files ``inputs`` (the same file by path or,
+    for links, by inode): an output must never replace what the command read. An atomic write
+    keeps a previous output whole, not an input: ``kfusion track DIR --out DIR/mocap.csv``
+    replaced the recording's mocap with the track and exited 0."""
+    target = Path(out)
+    for source in inputs:
+        if not source.is_file() or not target.exists():
+            continue
+        if target.resolve() == source.resolve() or os.path.samefile(target, source):
+            raise ValueError(f"{option} {out}: is {source}, an input of this run; expected "
+                             "another file (an output never replaces its input)")
 
 
 def atomic_write(path: str | Path, write: Callable[[Path], object]) -> Path:

@@ -484,7 +484,7 @@ def _read_table(path: Path, columns: Sequence[str]) -> tuple[pd.DataFrame, NDArr
         row, col = np.argwhere(bad)[0]
         raise RecordingError(
             path.name,
-            f"non-numeric value {raw.iat[row, col]!r}; expected a number",
+            f"non-numeric value {short_repr(raw.iat[row, col])}; expected a number",
             row=int(row) + 1,
             column=columns[col],
         )
@@ -912,6 +912,15 @@ def check_marker_names(markers: MarkerFrames, info: RecordingInfo,
         raise RecordingError(file, f"marker {unknown[0]!r} has no body-frame position in "
                              f"{META_FILE}'s markers; expected one of {list(info.markers)}",
                              column=f"{unknown[0]}_x")
+
+
+def recording_files(folder: str | Path) -> list[Path]:
+    """The files of a recording folder that :func:`read_recording` reads or may read
+    (``recording.yaml``, ``imu.csv``, ``mocap.csv``, ``markers.csv``, ``truth.csv``), present
+    or not: what no command's output may replace."""
+    folder = Path(folder)
+    return [folder / name for name in (META_FILE, IMU_FILE, MOCAP_FILE, MARKERS_FILE,
+                                       TRUTH_FILE)]
 
 
 def read_recording(folder: str | Path, *, zero_position_means_occluded: bool = False) -> Recording:

@@ -279,6 +279,7 @@ class Estimate:
         baseline), never a small number. See :func:`position_bound` for the formula; it is
         conservative (exact for an isotropic covariance).
         """
+        checked_confidence(confidence)  # a bad confidence is an error, lost or not
         if self.status == LOST:
             return math.inf
         return position_bound(self.covariance, confidence)
@@ -490,19 +491,37 @@ def position_bound(covariance: ArrayLike, confidence: float = DEFAULT_CONFIDENCE
     right choice for a safety margin). ``math.inf`` when Σ is not finite (no uncertainty).
 
     Args:
-        covariance: (3, 3) symmetric position covariance, m^2.
+        covariance: (3, 3) symmetric position covariance, m^2; ValueError when its largest
+            eigenvalue is negative (not a covariance: a zero bound would be the unsafe answer).
         confidence: probability in (0, 1).
     """
-    if isinstance(confidence, bool) or not isinstance(confidence, Real) \
-            or not 0.0 < float(confidence) < 1.0:
-        raise ValueError(f"confidence: expected a probability in (0, 1), got {confidence!r}")
+    probability = checked_confidence(confidence)
     sigma = np.asarray(covariance, dtype=float)
     if sigma.shape != (3, 3):
         raise ValueError(f"covariance: expected shape (3, 3), got {sigma.shape}")
     if not np.isfinite(sigma).all():
         return math.inf
     largest = float(np.linalg.eigvalsh(0.5 * (sigma + sigma.T))[-1])
-    return math.sqrt(max(largest, 0.0) * _chi2_3_quantile(float(confidence)))
+    if largest < 0.0:
+        raise ValueError(f"covariance: its largest eigenvalue is {largest:.3g} < 0; expected a "
+                         "positive semi-definite covariance")
+    return math.sqrt(largest * _chi2_3_quantile(probability))
+
+
+def checked_confidence(confidence: object) -> float:
+    """``confidence`` as a float when it is a probability in (0, 1), else ValueError (also for
+    a bool, and for an integer too large for a float)."""
+    if isinstance(confidence, bool) or not isinstance(confidence, Real):
+        raise ValueError(f"confidence: expected a probability in (0, 1), got "
+                         f"{short_repr(confidence)}")
+    try:
+        probability = float(confidence)
+    except OverflowError:
+        probability = math.inf
+    if not 0.0 < probability < 1.0:
+        raise ValueError(f"confidence: expected a probability in (0, 1), got "
+                         f"{short_repr(confidence)}")
+    return probability
 
 
 def _read_only(array: NDArray[np.float64]) -> NDArray[np.float64]:

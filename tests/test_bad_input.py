@@ -392,3 +392,100 @@ def test_imu_stamps_colliding_on_the_mocap_clock_name_the_row(folder, capsys):
         assert "imu.csv, row 6 (line 7), column 't'" in error[0]
         assert "maps onto the mocap clock" in error[0]
     assert not (folder / "t.csv").exists()
+
+
+# ------------------------------------------------------------------------------------------
+# Found by a fuzzing pass (each gave a traceback, a hang or lost data)
+# ------------------------------------------------------------------------------------------
+
+
+def test_a_control_character_in_any_yaml_is_one_line(folder, tmp_path, capsys):
+    """PyYAML's reader refuses raw control characters while the loader is built, before the
+    loader's own try: a ReaderError escaped as a traceback from recording.yaml, configs and
+    --set."""
+    edit_yaml(folder, "name:", "bell: \"a\x07b\"\nname:")
+    message = cli_error(capsys, ["check", str(folder)])
+    assert "recording.yaml" in message and "#x0007" in message
+    with pytest.raises(YamlError, match="#x0000"):
+        load_yaml_text("name: a\x00", "x.yaml")
+
+
+@pytest.mark.parametrize("name", ["mocap.csv", "imu.csv", "recording.yaml"])
+def test_track_never_writes_over_its_own_inputs(folder, capsys, name):
+    """``kfusion track DIR --out DIR/mocap.csv`` exited 0 and replaced the recording's mocap with
+    the track."""
+    before = (folder / name).read_bytes()
+    message = cli_error(capsys, ["track", str(folder), "--out", str(folder / name)])
+    assert "--out" in message and "an input of this run" in message
+    assert (folder / name).read_bytes() == before
+
+
+@pytest.mark.parametrize("name", ["mocap_position_noise", "accelerometer_noise_density",
+                                  "initial_velocity_std", "gate_min_innovation",
+                                  "gyroscope_scale_error"])
+def test_huge_finite_parameters_are_refused(folder, tmp_path, capsys, name):
+    """From about 1.4e154 Python's x ** 2 raised OverflowError out of kfusion track (some on
+    every engine, some on filterpy only: the engines also disagreed)."""
+    with pytest.raises(ValueError, match=f"KalmanParameters.{name}: expected at most 1e\\+06"):
+        KalmanParameters.from_profiles(**{name: 1e200})
+    message = cli_error(capsys, ["track", str(folder), "--out", str(tmp_path / "t.csv"),
+                                 "--set", f"{name}=1e300"])
+    assert name in message and not (tmp_path / "t.csv").exists()
+
+
+def test_a_simulation_longer_than_an_hour_is_refused(tmp_path, capsys):
+    """``kfusion simulate --duration 1e9`` ran for minutes without an end."""
+    message = cli_error(capsys, ["simulate", "circle", "--duration", "1e9", "--out",
+                                 str(tmp_path / "s")])
+    assert "duration: expected 5-3600 s" in message and not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("value", ["1e9", "nan", "-1", "0"])
+def test_calibrate_max_offset_must_be_a_sane_search_range(folder, capsys, value):
+    """``--max-offset 1e9`` asked numpy for 2.9 TiB (MemoryError), nan gave "arange: cannot
+    compute length", -1 printed "+- -1 s"."""
+    message = cli_error(capsys, ["calibrate", str(folder), "--max-offset", value])
+    assert "max offset: expected a number of seconds in (0, 3600]" in message
+
+
+def test_a_huge_csv_cell_is_shown_short(folder, capsys):
+    path = folder / "imu.csv"
+    lines = path.read_text().splitlines()
+    cells = lines[3].split(",")
+    cells[1] = "1" * 200_000
+    lines[3] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    message = cli_error(capsys, ["check", str(folder)])
+    assert "imu.csv, row 3" in message and len(message) < 300
+
+
+def test_bounds_refuse_what_is_not_a_covariance_or_a_probability():
+    """A negative definite covariance gave a zero bound (the unsafe answer); a confidence of
+    10**400 an OverflowError; a lost estimate took any confidence."""
+    from kfusion.tracker import position_bound
+
+    with pytest.raises(ValueError, match="largest eigenvalue"):
+        position_bound(-np.eye(3))
+    assert position_bound(np.zeros((3, 3))) == 0.0
+    tracker = Tracker([1, 0, 0, 0], [0, 0, -9.81])
+    for index in range(400):
+        t = index * 0.005
+        tracker.push_imu(t, [0, 0, 9.81], [0, 0, 0])
+        tracker.push_mocap(t, [0, 0, 0], [1, 0, 0, 0])
+    estimate = tracker.estimate(tracker.newest_time)
+    for confidence in (10 ** 400, 1.5, math.nan, True):
+        with pytest.raises(ValueError, match="confidence"):
+            estimate.bound(confidence)
+    lost = tracker.estimate(tracker.newest_time + 100.0)
+    assert lost.status == "lost" and lost.bound() == math.inf
+    with pytest.raises(ValueError, match="confidence"):
+        lost.bound(1.5)
+
+
+def test_python_dash_m_kfusion_is_the_command():
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "kfusion", "--version"], capture_output=True,
+                          text=True, timeout=120, check=False)
+    assert done.returncode == 0 and done.stdout.strip()

@@ -162,7 +162,7 @@ def test_unknown_scenario_names_the_known_ones():
 
 @pytest.mark.parametrize("kwargs, message", [
     ({"seed": -1}, "seed: expected a non-negative integer"),
-    ({"seed": 0, "duration": 2.0}, "duration: expected at least"),
+    ({"seed": 0, "duration": 2.0}, "duration: expected 5-3600 s"),
     ({"seed": 0, "imu": "bno055"}, "unknown IMU profile"),
     ({"seed": 0, "imu_rate": 0.0}, "imu_rate: expected a positive rate"),
     ({"seed": 0, "occlusions": (0.1, 0.3)}, "occlusions: expected an OcclusionSpec"),

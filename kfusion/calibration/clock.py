@@ -40,6 +40,10 @@ CORRELATION_STEP_S: Final = 0.005
 """s: grid of the coarse cross-correlation (sub-step accuracy comes from the refinement)."""
 DEFAULT_MAX_OFFSET_S: Final = 5.0
 """s: coarse search range of the clock offset, either sign."""
+LARGEST_MAX_OFFSET_S: Final = 3600.0
+"""s: the largest search range accepted (its grid at :data:`CORRELATION_STEP_S` holds about
+1.4 million points; ``--max-offset 1e9`` asked numpy for 2.9 TiB). An offset beyond an hour is
+a clock set to another day, not something to search for."""
 
 
 @dataclass(frozen=True)
@@ -225,8 +229,12 @@ def coarse_clock_offset(recording: Recording, *, max_offset: float = DEFAULT_MAX
     ``centre +- max_offset`` s. Independent of the mount. The recording's own clock fields are
     ignored: the lag is measured on the raw IMU stamps.
 
-    Raises ValueError when no lag has enough overlap (at least 5 s or a quarter of the mocap).
+    Raises ValueError when no lag has enough overlap (at least 5 s or a quarter of the mocap),
+    or when ``max_offset`` is not a number in (0, :data:`LARGEST_MAX_OFFSET_S`].
     """
+    if not (isinstance(max_offset, (int, float)) and 0 < max_offset <= LARGEST_MAX_OFFSET_S):
+        raise ValueError(f"max offset: expected a number of seconds in (0, "
+                         f"{LARGEST_MAX_OFFSET_S:g}], got {max_offset!r}")
     imu, mocap = recording.imu, recording.mocap
     frames = frames_per_interval(mocap.t)
     rates = mocap_interval_rates(mocap.t, mocap.quaternion, frames, stride=1)

@@ -20,10 +20,10 @@ from kfusion.calibration.diagnosis import diagnose
 from kfusion.config import check_methods
 from kfusion.conventions import STATUSES
 from kfusion.experiment import engine_options
-from kfusion.guards import YamlError, load_yaml_text, short_repr
+from kfusion.guards import YamlError, load_yaml_text, refuse_overwriting, short_repr
 from kfusion.kalman.engines import DEFAULT_ENGINE, ENGINES
 from kfusion.methods import METHODS, track_with_method
-from kfusion.recording import Recording, read_recording
+from kfusion.recording import Recording, read_recording, recording_files
 from kfusion.track_file import write_track_csv
 
 NAME = "track"
@@ -122,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
     bodies = body_folders(args.folder)
     if bodies:
         return track_bodies(args, bodies)
+    refuse_overwriting(args.out, recording_files(args.folder))
     recording = read_recording(args.folder, zero_position_means_occluded=args.zeros_occluded)
     options = parse_options(args.options, args.method)
     # the clock is tested as the filter will take it: with an overridden IMU latency

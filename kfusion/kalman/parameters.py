@@ -33,6 +33,13 @@ message."""
 MIN_POSITION_NOISE: Final = 1e-6
 """m: the smallest mocap and marker position noise (a micrometre): below it the innovation
 covariance underflows (1e-300 stopped ``kfusion track`` with "Eigenvalues did not converge")."""
+MAX_MAGNITUDE: Final = 1e6
+"""The largest value (SI units) of a noise density, standard deviation, scale error, time or
+factor among the parameters (all but the ranges, and ``max_bridge_s`` and ``imu_latency_s``,
+which have their own limits): far beyond any sensor, and small enough that its square and the
+covariances built on it stay finite (from about 1.4e154 Python's ``x ** 2`` raised
+OverflowError out of ``kfusion track``)."""
+
 
 @dataclass(frozen=True)
 class KalmanParameters:
@@ -153,6 +160,10 @@ class KalmanParameters:
             if name in non_negative and not number >= 0:
                 raise ValueError(f"KalmanParameters.{name}: expected a number >= 0, "
                                  f"got {short_repr(value)}")
+            own_limit = name in ("max_bridge_s", "imu_latency_s")  # (checked below)
+            if not (infinite_allowed or own_limit) and abs(number) > MAX_MAGNITUDE:
+                raise ValueError(f"KalmanParameters.{name}: expected at most {MAX_MAGNITUDE:g} "
+                                 f"(SI units), got {short_repr(value)}")
             object.__setattr__(self, name, number)
         if abs(self.imu_latency_s) > MAX_LATENCY_S:
             raise ValueError(f"KalmanParameters.imu_latency_s: expected at most {MAX_LATENCY_S:g} "

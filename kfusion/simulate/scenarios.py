@@ -76,6 +76,9 @@ END_REST = 1.0
 """s: at least this long at rest at the end."""
 MIN_DURATION = 5.0
 """s: shortest scenario accepted."""
+MAX_DURATION = 3600.0
+"""s: longest scenario accepted (an hour: about 720 000 IMU samples at 200 Hz; ``kfusion
+simulate --duration 1e9`` ran for minutes without an end), the limit run configs have too."""
 
 
 def minimum_jerk_duration(distance: float, peak_speed: float) -> float:

@@ -58,7 +58,7 @@ from kfusion.simulate.imu import (
 from kfusion.simulate.markers import MarkerSpec, hidden_markers, observe_markers
 from kfusion.simulate.mocap import measure_mocap
 from kfusion.simulate.occlusions import OcclusionSpec, place_occlusions
-from kfusion.simulate.scenarios import BUILDERS, DEFAULT_DURATIONS, MIN_DURATION
+from kfusion.simulate.scenarios import BUILDERS, DEFAULT_DURATIONS, MAX_DURATION, MIN_DURATION
 
 Array = NDArray[np.float64]
 
@@ -212,7 +212,7 @@ def simulate(
         imu: IMU profile name or :class:`~kfusion.profiles.ImuProfile` (any, e.g. error-free).
         mocap: mocap profile name or :class:`~kfusion.profiles.MocapProfile`.
         occlusions: occlusion spec; None for no occlusions.
-        duration: s, at least 5; None for the scenario's default (30-45 s).
+        duration: s, 5-3600; None for the scenario's default (30-45 s).
         imu_rate: IMU sample rate, Hz.
         mocap_rate: mocap frame rate, Hz; None for the mocap profile's rate.
         imu_time_offset: s, and imu_clock_drift_ppm: the IMU's own clock (module docstring);
@@ -238,8 +238,9 @@ def simulate(
     imu_object, mocap_object = _resolve_profiles(imu, mocap)
     length = DEFAULT_DURATIONS[scenario] if duration is None else duration
     if isinstance(length, bool) or not isinstance(length, (int, float)) or not (
-            math.isfinite(length) and length >= MIN_DURATION):
-        raise ValueError(f"duration: expected at least {MIN_DURATION} s, got {duration!r}")
+            math.isfinite(length) and MIN_DURATION <= length <= MAX_DURATION):
+        raise ValueError(f"duration: expected {MIN_DURATION:g}-{MAX_DURATION:g} s, got "
+                         f"{duration!r}")
     imu_rate = _check_rate("imu_rate", imu_rate)
     mocap_rate = _check_rate("mocap_rate",
                              mocap_object.rate if mocap_rate is None else mocap_rate)
