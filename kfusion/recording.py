@@ -656,6 +656,16 @@ def check_mocap_values(file: str, position: NDArray, quaternion: NDArray,
         )
 
 
+def printable_text(text: str) -> bool:
+    """True when ``text`` has no control characters and encodes as UTF-8 (no lone
+    surrogates)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return text.isprintable()
+
+
 def _vector(file: str, data: dict, key: str, length: int, required: bool = True
             ) -> NDArray[np.float64] | None:
     if key not in data or data[key] is None:
@@ -663,6 +673,16 @@ def _vector(file: str, data: dict, key: str, length: int, required: bool = True
             raise RecordingError(file, f"missing; expected a list of {length} numbers", key=key)
         return None
     value = data[key]
+    if isinstance(value, np.ndarray):
+        listed = value.tolist() if value.ndim == 1 else value
+    else:
+        listed = value
+    if not isinstance(listed, (list, tuple)) or any(
+            isinstance(item, (bool, str)) for item in listed):
+        # np.asarray(dtype=float) took [true, false, false, false] and ["0", "-9.81", "0"]
+        # (scalar keys never take a bool or a string)
+        raise RecordingError(file, f"expected a list of {length} numbers, got "
+                             f"{short_repr(value)}", key=key)
     try:
         array = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
@@ -786,6 +806,11 @@ def parse_info(data: object, file: str = META_FILE, *, require_mount: bool = Tru
     for key in ("name", "imu"):
         if key in data and data[key] is not None and not isinstance(data[key], str):
             raise RecordingError(file, f"expected a string, got {short_repr(data[key])}",
+                                 key=key)
+        if isinstance(data.get(key), str) and not printable_text(data[key]):
+            # a lone surrogate ("\ud800") let check print "ok" and then fail to encode it; a
+            # terminal escape would reach the user's terminal through every message naming it
+            raise RecordingError(file, f"expected printable text, got {short_repr(data[key])}",
                                  key=key)
     offset = _number(file, data, "imu_time_offset", "s", MAX_CLOCK_OFFSET_S)
     drift = _number(file, data, "imu_clock_drift_ppm", "ppm", MAX_CLOCK_DRIFT_PPM)

@@ -489,3 +489,50 @@ def test_python_dash_m_kfusion_is_the_command():
     done = subprocess.run([sys.executable, "-m", "kfusion", "--version"], capture_output=True,
                           text=True, timeout=120, check=False)
     assert done.returncode == 0 and done.stdout.strip()
+
+
+def test_recording_yaml_vectors_take_numbers_only(folder, capsys):
+    """np.asarray(dtype=float) took imu_to_body: [true, false, false, false] and gravity as
+    strings, where scalar keys never take a bool or a string."""
+    import yaml
+
+    data = yaml.safe_load((folder / "recording.yaml").read_text())
+    data["lever_arm"] = [True, True, True]
+    (folder / "recording.yaml").write_text(yaml.safe_dump(data))
+    message = cli_error(capsys, ["check", str(folder)])
+    assert "key 'lever_arm': expected a list of 3 numbers, got [True, True, True]" in message
+    data["lever_arm"], data["gravity"] = [0.0, 0.0, 0.0], ["0", "-9.81", "0"]
+    (folder / "recording.yaml").write_text(yaml.safe_dump(data))
+    message = cli_error(capsys, ["check", str(folder)])
+    assert "key 'gravity': expected a list of 3 numbers" in message
+
+
+@pytest.mark.parametrize("name", ["\ud800", "a\x1b[31mb"])
+def test_a_recording_name_must_be_printable(folder, capsys, name):
+    """A lone surrogate let check print "ok" and then fail to encode it; an escape sequence
+    reached the terminal in every message naming the recording."""
+    escaped = name.encode("unicode_escape").decode("ascii")
+    (folder / "recording.yaml").write_text(
+        (folder / "recording.yaml").read_text() + f'name: "{escaped}"\n'
+        if "name:" not in (folder / "recording.yaml").read_text()
+        else "\n".join(line if not line.startswith("name:") else f'name: "{escaped}"'
+                       for line in (folder / "recording.yaml").read_text().splitlines()) + "\n")
+    message = cli_error(capsys, ["check", str(folder)])
+    assert "key 'name': expected printable text" in message
+    assert "ok:" not in capsys.readouterr().out
+
+
+def test_no_time_overlap_names_the_visible_mocap(folder, capsys):
+    """With one visible frame the message said the mocap spanned the whole recording (its
+    occluded rows) and that the overlap was 0: it contradicted itself."""
+    lines = (folder / "mocap.csv").read_text().splitlines()
+    columns = lines[0].count(",")
+    kept = lines[:2] + [line.split(",")[0] + "," * columns for line in lines[2:]]
+    (folder / "mocap.csv").write_text("\n".join(kept) + "\n")
+    message = cli_error(capsys, ["check", str(folder)])
+    assert "the visible mocap" in message and "(1 frames;" in message
+
+
+def test_track_out_with_a_trailing_separator_is_a_folder(folder, tmp_path, capsys):
+    message = cli_error(capsys, ["track", str(folder), "--out", str(tmp_path / "new") + "/"])
+    assert "names a folder; expected a file" in message and not (tmp_path / "new").exists()

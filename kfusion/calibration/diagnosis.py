@@ -152,6 +152,12 @@ def time_unit_problem(recording: Recording) -> str | None:
     return None
 
 
+def _seconds(value: float) -> str:
+    """A time for a message: 3 decimals, or 6 significant digits when that would be long (a
+    time of 1e300 printed 300 digits)."""
+    return f"{value:.3f}" if abs(value) < 1e9 else f"{value:.6g}"
+
+
 def overlap_seconds(recording: Recording) -> float:
     """Length of the common time span of the IMU and the visible mocap, s (<= 0: none)."""
     visible = recording.mocap.t[recording.mocap.visible]
@@ -392,11 +398,11 @@ def _diagnose(recording: Recording, imu_latency_s: float) -> Diagnosis:
                           "occluded, so nothing can be tracked or checked"])
     overlap = overlap_seconds(recording)
     if overlap <= 1.0:
-        imu, mocap = recording.imu.t, recording.mocap.t
-        return Diagnosis([f"no time overlap: the IMU spans {imu[0]:.3f}-{imu[-1]:.3f} s and "
-                          f"the mocap {mocap[0]:.3f}-{mocap[-1]:.3f} s (overlap "
-                          f"{max(overlap, 0.0):.3f} s): check both files' t column (same clock,"
-                          f" seconds) or {CALIBRATE_FIX}"])
+        imu, mocap = recording.imu.t, recording.mocap.t[recording.mocap.visible]
+        return Diagnosis([f"no time overlap: the IMU spans {_seconds(imu[0])}-{_seconds(imu[-1])}"
+                          f" s and the visible mocap {_seconds(mocap[0])}-{_seconds(mocap[-1])} "
+                          f"s ({len(mocap)} frames; overlap {max(overlap, 0.0):.3f} s): check "
+                          f"both files' t column (same clock, seconds) or {CALIBRATE_FIX}"])
     try:
         correlation = coarse_clock_offset(recording)
     except ValueError as error:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import os
 from pathlib import Path
 from typing import Any
 
@@ -122,6 +123,9 @@ def run(args: argparse.Namespace) -> int:
     bodies = body_folders(args.folder)
     if bodies:
         return track_bodies(args, bodies)
+    if str(args.out).endswith(("/", os.sep)):
+        # (a missing folder named so got a file of that name)
+        raise ValueError(f"--out {args.out}: names a folder; expected a file (OUT.csv)")
     refuse_overwriting(args.out, recording_files(args.folder))
     recording = read_recording(args.folder, zero_position_means_occluded=args.zeros_occluded)
     options = parse_options(args.options, args.method)
