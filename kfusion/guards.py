@@ -250,15 +250,13 @@ def _new_file_mode() -> int:
 
 
 def refuse_overwriting(out: str | Path, inputs: list[Path], option: str = "--out") -> None:
-    """ValueError when ``out`` is one of the existing files ``inputs`` (the same file by path or,
-    for links, by inode): an output must never replace what the command read. An atomic write
-    keeps a previous output whole, not an input: ``kfusion track DIR --out DIR/mocap.csv``
-    replaced the recording's mocap with the track and exited 0."""
+    """ValueError when ``out`` is one of the existing files ``inputs`` (the same file, by inode:
+    links and other spellings of its path included): an output must never replace what the
+    command read. An atomic write keeps a previous output whole, not an input: ``kfusion track
+    DIR --out DIR/mocap.csv`` replaced the recording's mocap with the track and exited 0."""
     target = Path(out)
     for source in inputs:
-        if not source.is_file() or not target.exists():
-            continue
-        if target.resolve() == source.resolve() or os.path.samefile(target, source):
+        if source.is_file() and target.exists() and os.path.samefile(target, source):
             raise ValueError(f"{option} {out}: is {source}, an input of this run; expected "
                              "another file (an output never replaces its input)")
 

@@ -673,10 +673,7 @@ def _vector(file: str, data: dict, key: str, length: int, required: bool = True
             raise RecordingError(file, f"missing; expected a list of {length} numbers", key=key)
         return None
     value = data[key]
-    if isinstance(value, np.ndarray):
-        listed = value.tolist() if value.ndim == 1 else value
-    else:
-        listed = value
+    listed = value.tolist() if isinstance(value, np.ndarray) else value
     if not isinstance(listed, (list, tuple)) or any(
             isinstance(item, (bool, str)) for item in listed):
         # np.asarray(dtype=float) took [true, false, false, false] and ["0", "-9.81", "0"]

@@ -279,8 +279,8 @@ class Estimate:
         baseline), never a small number. See :func:`position_bound` for the formula; it is
         conservative (exact for an isotropic covariance).
         """
-        checked_confidence(confidence)  # a bad confidence is an error, lost or not
         if self.status == LOST:
+            checked_confidence(confidence)  # a bad confidence is an error, lost or not
             return math.inf
         return position_bound(self.covariance, confidence)
 
