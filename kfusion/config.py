@@ -632,6 +632,12 @@ def _build_parameters(method: str, overrides: Mapping[str, Any]) -> object:
     return kind(**overrides)
 
 
+def _takes_bool(annotation: Any) -> bool:
+    """True when a field of type ``annotation`` takes true/false (``bool``, or a union with it;
+    ``Any``)."""
+    return annotation is bool or annotation is Any or bool in typing.get_args(annotation)
+
+
 def check_methods(methods: Mapping[str, Mapping[str, Any]]
                   ) -> tuple[dict[str, dict[str, Any]], list[ConfigIssue]]:
     """Check method names and their parameter overrides; return the overrides converted to the
@@ -653,6 +659,10 @@ def check_methods(methods: Mapping[str, Mapping[str, Any]]
             if key not in fields:
                 issues.append(ConfigIssue(path, f"unknown parameter; expected one of "
                                           f"{sorted(fields)}", unknown_key=True))
+                continue
+            if isinstance(value, bool) and not _takes_bool(fields[key]):
+                # pydantic's lax mode reads true as 1.0: `max_bridge_s: true` bridged 1 s
+                issues.append(ConfigIssue(path, f"expected a number, got {str(value).lower()}"))
                 continue
             try:
                 values[key] = TypeAdapter(fields[key]).validate_python(value)

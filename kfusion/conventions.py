@@ -82,6 +82,25 @@ drifts by metres within tens of seconds, and kfusion targets 0.1-1 s occlusions;
 QUATERNION_NORM_TOLERANCE: Final = 1e-3
 """Largest accepted | |q| - 1 | for a quaternion read from a file."""
 
+MAX_LEVER_ARM_M: Final = 2.0
+"""Largest lever arm (m, the IMU's offset from the rigid-body origin) on a limb; a longer one
+looks like mm."""
+
+MAX_ACCELEROMETER_VALUE: Final = 1e4
+MAX_GYROSCOPE_VALUE: Final = 1e3
+"""Largest |value| of one IMU axis that a body-worn sensor can report: 1e4 m/s^2 (about 1000 g;
+high-g MEMS accelerometers stop at 200-400 g) and 1e3 rad/s (about 57,000 deg/s; gyroscopes stop
+at 4000-5000 deg/s). Beyond it a value is corrupt, like a non-finite one, not a reading at the
+range limit (which is fused and flagged ``saturated``)."""
+
+
+def vector_length(values: ArrayLike, axis: int | None = None) -> Any:
+    """Euclidean length ``sqrt(sum v_i^2)`` of ``values`` (along ``axis``); inf, without
+    numpy's overflow warning, where the squares overflow (a value near 1e308 in a file), so that
+    the message naming the value is the only thing printed."""
+    with np.errstate(over="ignore"):
+        return np.linalg.norm(values, axis=axis)
+
 
 def imu_time_to_mocap(t_imu: ArrayLike, imu_time_offset: float = 0.0,
                       imu_clock_drift_ppm: float = 0.0) -> NDArray[np.float64]:

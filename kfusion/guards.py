@@ -12,6 +12,8 @@ for messages, and plain-array checks.
   with ``os.replace``. A failed write (full disk, interrupted) leaves the previous file intact.
 * :func:`short_repr`: a value for an error message, never longer than ``limit`` characters and
   never built by printing a whole huge value (a 400-digit integer, a nested list).
+* :func:`finite_float`: the argparse type of every number option of the command line; ``nan``
+  and ``inf`` are refused there (``--start nan`` printed from the start, ``--start inf`` nothing).
 * :func:`refuse_masked`: numpy masked arrays silently lose their mask in ``np.asarray``; they are
   refused with a message saying to mark missing values with NaN.
 """
@@ -94,6 +96,20 @@ def real_number(value: object) -> float | None:
 
 # --------------------------------------------------------------------------------------------
 # arrays
+
+
+def finite_float(text: str) -> float:
+    """``float(text)`` for an argparse option, refusing what is not a finite number
+    (argparse then prints ``argument --start: expected a finite number, got 'nan'``, exit 2)."""
+    import argparse
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {short_repr(text)}")
+    return value
 
 
 def refuse_masked(where: str, value: object) -> None:

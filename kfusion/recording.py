@@ -49,9 +49,13 @@ if TYPE_CHECKING:
 from kfusion.conventions import (
     GRAVITY_MAGNITUDE_RANGE,
     IMU_COLUMNS,
+    MAX_ACCELEROMETER_VALUE,
+    MAX_GYROSCOPE_VALUE,
+    MAX_LEVER_ARM_M,
     MOCAP_COLUMNS,
     QUATERNION_NORM_TOLERANCE,
     imu_time_to_mocap,
+    vector_length,
 )
 from kfusion.guards import (
     YamlError,
@@ -95,8 +99,6 @@ PLAUSIBLE_ACCELEROMETER_MEDIAN = (4.0, 30.0)
 """m/s^2: the median specific-force magnitude of a worn IMU is near 9.81."""
 MAX_PLAUSIBLE_ANGULAR_RATE = 40.0
 """rad/s: a 99th-percentile gyroscope magnitude above this looks like deg/s."""
-
-
 class RecordingError(ValueError):
     """A recording file is malformed. ``str()`` is one line naming file, row, column or key.
 
@@ -559,6 +561,16 @@ def read_imu(path: str | Path) -> ImuSamples:
             row=int(row) + 1,
             column=IMU_COLUMNS[col],
         )
+    for first, kind, limit, unit in ((1, "accelerometer", MAX_ACCELEROMETER_VALUE, "m/s^2"),
+                                     (4, "gyroscope", MAX_GYROSCOPE_VALUE, "rad/s")):
+        beyond = np.abs(values[:, first:first + 3]) > limit
+        if beyond.any():
+            row, col = np.argwhere(beyond)[0]
+            raise RecordingError(
+                path.name,
+                f"{kind} value {float(values[row, first + col]):.6g} is beyond any body-worn "
+                f"sensor's range; expected |value| <= {limit:g} {unit}",
+                row=int(row) + 1, column=IMU_COLUMNS[first + col])
     samples = ImuSamples(t=values[:, 0], accelerometer=values[:, 1:4], gyroscope=values[:, 4:7])
     check_imu_units(path.name, samples)
     return samples
@@ -633,13 +645,13 @@ def read_mocap(path: str | Path, *, zero_position_means_occluded: bool = False) 
 
 def check_mocap_values(file: str, position: NDArray, quaternion: NDArray,
                         visible: NDArray[np.bool_]) -> None:
-    norm_error = np.abs(np.linalg.norm(quaternion, axis=1) - 1.0)
+    norm_error = np.abs(vector_length(quaternion, axis=1) - 1.0)
     bad = visible & (norm_error > QUATERNION_NORM_TOLERANCE)
     if bad.any():
         row = int(np.flatnonzero(bad)[0])
         raise RecordingError(
             file,
-            f"quaternion norm is {np.linalg.norm(quaternion[row]):.6g}; expected a unit "
+            f"quaternion norm is {vector_length(quaternion[row]):.6g}; expected a unit "
             f"quaternion [w, x, y, z] (|norm - 1| <= {QUATERNION_NORM_TOLERANCE})",
             row=row + 1,
             column="qw",
@@ -757,8 +769,8 @@ def _marker_positions(file: str, data: dict) -> dict[str, NDArray[np.float64]] |
         if position is None:
             raise RecordingError(file, "missing; expected a list of 3 numbers (m, body frame)",
                                  key=f"markers.{name}")
-        if np.linalg.norm(position) > MAX_PLAUSIBLE_MARKER_OFFSET:
-            raise RecordingError(file, f"marker is {np.linalg.norm(position):.4g} from the "
+        if vector_length(position) > MAX_PLAUSIBLE_MARKER_OFFSET:
+            raise RecordingError(file, f"marker is {vector_length(position):.4g} from the "
                                  "rigid-body origin, which looks like mm; expected m (at most "
                                  f"{MAX_PLAUSIBLE_MARKER_OFFSET:g})", key=f"markers.{name}")
         positions[name] = position
@@ -786,20 +798,23 @@ def parse_info(data: object, file: str = META_FILE, *, require_mount: bool = Tru
     imu_to_body = _vector(file, data, "imu_to_body", 4, required=False)
     if imu_to_body is None:
         imu_to_body = np.full(4, np.nan)
-    elif abs(np.linalg.norm(imu_to_body) - 1.0) > QUATERNION_NORM_TOLERANCE:
-        raise RecordingError(file, f"quaternion norm is {np.linalg.norm(imu_to_body):.6g}; "
+    elif abs(vector_length(imu_to_body) - 1.0) > QUATERNION_NORM_TOLERANCE:
+        raise RecordingError(file, f"quaternion norm is {vector_length(imu_to_body):.6g}; "
                              "expected a unit quaternion [w, x, y, z]", key="imu_to_body")
     gravity = _vector(file, data, "gravity", 3, required=require_mount)
     if gravity is None:
         gravity = np.full(3, np.nan)
     low, high = GRAVITY_MAGNITUDE_RANGE
-    if np.isfinite(gravity).all() and not low <= np.linalg.norm(gravity) <= high:
-        raise RecordingError(file, f"gravity length is {np.linalg.norm(gravity):.4g} m/s^2; "
+    if np.isfinite(gravity).all() and not low <= vector_length(gravity) <= high:
+        raise RecordingError(file, f"gravity length is {vector_length(gravity):.4g} m/s^2; "
                              f"expected about 9.81 (between {low} and {high})", key="gravity")
     lever_arm = _vector(file, data, "lever_arm", 3, required=False)
-    if lever_arm is not None and np.linalg.norm(lever_arm) > 2.0:
-        raise RecordingError(file, f"lever arm length is {np.linalg.norm(lever_arm):.4g}, which "
-                             "looks like mm; expected m", key="lever_arm")
+    if lever_arm is not None and vector_length(lever_arm) > MAX_LEVER_ARM_M:
+        length = vector_length(lever_arm)
+        advice = "which looks like mm" if length <= 1000 * MAX_LEVER_ARM_M else \
+            "implausible even in mm"
+        raise RecordingError(file, f"lever arm length is {length:.4g}, {advice}; expected m "
+                             f"(at most {MAX_LEVER_ARM_M:g} m)", key="lever_arm")
     for key in ("name", "imu"):
         if key in data and data[key] is not None and not isinstance(data[key], str):
             raise RecordingError(file, f"expected a string, got {short_repr(data[key])}",

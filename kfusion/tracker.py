@@ -53,6 +53,8 @@ host clock glitching a few frames)     next frame; one stamped before it rejects
                                        frames (the waiting one is fused first), as does an IMU
                                        sample past its time (``health.mocap_waiting``)
 huge int time (beyond float)           rejected ``non_finite``; ``estimate`` of it is lost
+IMU axis beyond any sensor's range     rejected ``implausible_value``: corrupt like a non-finite
+(1e4 m/s^2, 1e3 rad/s)                 sample, not saturated
 accelerometer at its range limit       accepted, flagged ``saturated``; the Kalman filter adds
 (an axis at >= 99.9 % of the range)    (range/2)^2 acceleration variance over the interval the
                                        sample is held, so the clipped part becomes position and
@@ -62,6 +64,7 @@ mocap position None / NaN              occluded: no update, bridging
 mocap pose repeated bit for bit (one   not a measurement (a client holding the last value):
 of the 10 latest visible frames')      occluded, counted ``held_poses`` (kept across reset)
 mocap position inf                     rejected ``non_finite``
+mocap coordinate beyond 10 m           rejected ``implausible_value`` (mm, or corrupt)
 mocap quaternion None / NaN            kalman: position-only update (orientation from the
                                        gyroscope); baseline: occluded
 mocap quaternion not unit (> 1e-3)     rejected ``bad_quaternion``
@@ -148,8 +151,12 @@ from kfusion.conventions import (
     BRIDGED,
     GRAVITY_MAGNITUDE_RANGE,
     LOST,
+    MAX_ACCELEROMETER_VALUE,
+    MAX_GYROSCOPE_VALUE,
+    MAX_LEVER_ARM_M,
     QUATERNION_NORM_TOLERANCE,
     imu_time_to_mocap,
+    vector_length,
 )
 from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, short_repr
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, event_key
@@ -163,7 +170,7 @@ from kfusion.online_clock import (
     timing_error_covariance,
 )
 from kfusion.profiles import ImuProfile, imu_profile
-from kfusion.recording import RecordingInfo, check_clock, parse_info
+from kfusion.recording import MAX_PLAUSIBLE_POSITION, RecordingInfo, check_clock, parse_info
 from kfusion.streamhealth import (
     DEFAULT_MAX_TIME_JUMP_S,
     FIX_TIMEOUT_S,
@@ -197,6 +204,11 @@ DUPLICATE: Final = "duplicate"
 CONFLICTING_DUPLICATE: Final = "conflicting_duplicate"
 TOO_LATE: Final = "too_late"
 BAD_QUATERNION: Final = "bad_quaternion"
+IMPLAUSIBLE_VALUE: Final = "implausible_value"
+"""An IMU sample with an axis beyond what any body-worn sensor reports (``MAX_ACCELEROMETER_VALUE``
+and ``MAX_GYROSCOPE_VALUE`` of :mod:`kfusion.conventions`): corrupt like a non-finite one, not
+saturated; or a mocap coordinate (a marker's too) beyond
+:data:`kfusion.recording.MAX_PLAUSIBLE_POSITION`, which ``kfusion check`` refuses in a file."""
 IMPLAUSIBLE_TIME: Final = "implausible_time"
 """A stamp implausibly far ahead of both streams (:class:`kfusion.streamhealth.TimeGuard`), or
 a frame waiting for jumping ahead of the mocap's cadence that the next frame contradicted."""
@@ -214,10 +226,10 @@ FIXED: Final = (ACCEPTED, REACQUIRED, INITIALISED)
 """Mocap outcomes whose fix was fused: the filter's own vocabulary
 (:data:`kfusion.kalman.filter.USED_OUTCOMES`), the first fix ``initialised`` as in ``kfusion
 track``'s outcome column."""
-IMU_REJECTIONS: Final = (NON_FINITE, OUT_OF_ORDER, DUPLICATE, CONFLICTING_DUPLICATE, TOO_LATE,
-                         IMPLAUSIBLE_TIME)
-MOCAP_REJECTIONS: Final = (GATED, NON_FINITE, BAD_QUATERNION, OUT_OF_ORDER, DUPLICATE,
-                           CONFLICTING_DUPLICATE, TOO_LATE, IMPLAUSIBLE_TIME)
+IMU_REJECTIONS: Final = (NON_FINITE, IMPLAUSIBLE_VALUE, OUT_OF_ORDER, DUPLICATE,
+                         CONFLICTING_DUPLICATE, TOO_LATE, IMPLAUSIBLE_TIME)
+MOCAP_REJECTIONS: Final = (GATED, NON_FINITE, IMPLAUSIBLE_VALUE, BAD_QUATERNION, OUT_OF_ORDER,
+                           DUPLICATE, CONFLICTING_DUPLICATE, TOO_LATE, IMPLAUSIBLE_TIME)
 METHODS: Final = ("kalman", "baseline")
 DEFAULT_CONFIDENCE: Final = 0.99
 
@@ -448,13 +460,13 @@ class TrackerSnapshot:
     _state: Any = field(repr=False, compare=False)
 
 
-SNAPSHOT_FORMAT: Final = 4
+SNAPSHOT_FORMAT: Final = 5
 """Version of the state a :class:`TrackerSnapshot` holds (part of its configuration): raised
 whenever the estimator's or the monitor's state changes shape, so that a snapshot pickled by
 another version of kfusion is refused by :meth:`Tracker.restore` with a ValueError rather than
 restored and failing later (2: the monitor's sorted horizon rows and per-fix caches; 3: the
 time of the first fused frame, from which fixes test the model; 4: the running gap's peak
-variance and last frames)."""
+variance and last frames; 5: the implausible_value rejection counter)."""
 
 _NUMERICAL_ERRORS: Final = (ArithmeticError, ValueError, np.linalg.LinAlgError)
 """What the estimator's maths may raise on overflowing numbers (math.sin(inf), singular S)."""
@@ -1109,19 +1121,22 @@ class Tracker:
         self._lock = threading.RLock()
         self._clock = clock
         q_body_imu = _vector("Tracker", "imu_to_body", imu_to_body, 4, "[w, x, y, z]")
-        norm = float(np.linalg.norm(q_body_imu))
+        norm = float(vector_length(q_body_imu))
         if not np.isfinite(q_body_imu).all() or abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
             raise ValueError(f"Tracker: imu_to_body: expected a unit quaternion [w, x, y, z], "
                              f"got norm {norm:.6g}")
         gravity_vector = _vector("Tracker", "gravity", gravity, 3, "m/s^2")
         low, high = GRAVITY_MAGNITUDE_RANGE
         if not (np.isfinite(gravity_vector).all()
-                and low <= np.linalg.norm(gravity_vector) <= high):
+                and low <= vector_length(gravity_vector) <= high):
             raise ValueError(f"Tracker: gravity: expected a length of about 9.81 m/s^2 (between "
-                             f"{low} and {high}), got {np.linalg.norm(gravity_vector):.4g}")
+                             f"{low} and {high}), got {vector_length(gravity_vector):.4g}")
         lever = None if lever_arm is None else _vector("Tracker", "lever_arm", lever_arm, 3, "m")
         if lever is not None and not np.isfinite(lever).all():
             raise ValueError("Tracker: lever_arm: expected 3 finite numbers (m), got non-finite")
+        if lever is not None and vector_length(lever) > MAX_LEVER_ARM_M:
+            raise ValueError(f"Tracker: lever_arm: expected at most {MAX_LEVER_ARM_M:g} m long "
+                             f"(m, not mm), got {vector_length(lever):.4g}")
         if engine is None:  # marker-level fusion has no compiled path yet
             engine = "filterpy" if markers else "compiled"
         if engine not in ("compiled", "filterpy"):  # kfusion.kalman.engines.ENGINES
@@ -1303,6 +1318,9 @@ class Tracker:
         if not (isfinite(t) and isfinite(a0) and isfinite(a1) and isfinite(a2)
                 and isfinite(g0) and isfinite(g1) and isfinite(g2)):
             return self._reject(stream, NON_FINITE)
+        if max(abs(a0), abs(a1), abs(a2)) > MAX_ACCELEROMETER_VALUE \
+                or max(abs(g0), abs(g1), abs(g2)) > MAX_GYROSCOPE_VALUE:
+            return self._reject(stream, IMPLAUSIBLE_VALUE)
         if self._implausible(t, IMU_STREAM):
             return self._reject(stream, IMPLAUSIBLE_TIME)
         if t <= stream.last_t:
@@ -1357,6 +1375,9 @@ class Tracker:
         if not math.isfinite(t) or any(map(math.isinf, values + components)):
             self._frame_arrived(t)
             return self._reject(stream, NON_FINITE)
+        if any(abs(value) > MAX_PLAUSIBLE_POSITION for value in values):  # (NaN compares False)
+            self._frame_arrived(t)
+            return self._reject(stream, IMPLAUSIBLE_VALUE)
         if self._implausible(t, MOCAP_STREAM):
             return self._reject(stream, IMPLAUSIBLE_TIME)
         if any(map(math.isnan, values)):
@@ -1421,6 +1442,9 @@ class Tracker:
         if not math.isfinite(t) or np.isinf(observed).any():
             self._frame_arrived(t)
             return self._reject(stream, NON_FINITE)
+        if (np.abs(observed) > MAX_PLAUSIBLE_POSITION).any():  # (NaN compares False)
+            self._frame_arrived(t)
+            return self._reject(stream, IMPLAUSIBLE_VALUE)
         if self._implausible(t, MOCAP_STREAM):
             return self._reject(stream, IMPLAUSIBLE_TIME)
         values = (observed, np.full(4, np.nan))  # no rigid-body orientation

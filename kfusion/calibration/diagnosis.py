@@ -100,6 +100,9 @@ MIN_GRAVITY_SECONDS: Final = 5.0
 """s: visible mocap needed (after trimming run ends) to test gravity."""
 UNITS_RATIO: Final = (300.0, 3000.0)
 """A stream whose time span is this many times the other's was written in ms."""
+MS_MEDIAN_STEP: Final = 0.5
+"""Median step (in the file's unit) from which a stream's times read as ms: a stream of 2 Hz or
+more has a step below it in seconds, one of 2 kHz or less a step above it in ms."""
 OFFSET_SIGMAS: Final = 2.0
 """The accelerometer's offset is reported only beyond the tolerance plus this many sigma (a
 short or slow recording times it loosely: 2.5 +- 1.3 ms on a 20 s simulated reach)."""
@@ -139,14 +142,22 @@ def _span(t: np.ndarray) -> float:
     return float(t[-1] - t[0]) if len(t) > 1 else 0.0
 
 
+def _median_step(t: np.ndarray) -> float:
+    return float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+
+
 def time_unit_problem(recording: Recording) -> str | None:
-    """A message when one stream's time span is ~1000 times the other's, else None."""
+    """A message when one stream's time span is ~1000 times the other's and its median step,
+    read as seconds, is at least :data:`MS_MEDIAN_STEP` (a stream stopping early, e.g. an
+    imu.csv of 2 rows, has a short span but a step in seconds), else None."""
     imu, mocap = _span(recording.imu.t), _span(recording.mocap.t)
     low, high = UNITS_RATIO
-    if mocap > 0 and low <= imu / mocap <= high:
+    if mocap > 0 and low <= imu / mocap <= high \
+            and _median_step(recording.imu.t) >= MS_MEDIAN_STEP:
         return (f"IMU time looks like ms: imu.csv spans {imu:.6g} against the mocap's "
                 f"{mocap:.6g} s: divide imu.csv's t by 1000")
-    if imu > 0 and low <= mocap / imu <= high:
+    if imu > 0 and low <= mocap / imu <= high \
+            and _median_step(recording.mocap.t) >= MS_MEDIAN_STEP:
         return (f"mocap time looks like ms: mocap.csv spans {mocap:.6g} against the IMU's "
                 f"{imu:.6g} s: divide mocap.csv's t by 1000")
     return None

@@ -32,7 +32,7 @@ from kfusion.calibration import (
     calibrate_recording,
 )
 from kfusion.conventions import OPTITRACK_GRAVITY
-from kfusion.guards import atomic_write_text
+from kfusion.guards import atomic_write_text, finite_float
 from kfusion.recording import (
     IMU_FILE,
     META_FILE,
@@ -62,10 +62,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gain-out", metavar="FILE",
                         help="write the gain K as baseline parameters YAML (gain: K)")
     parser.add_argument("--force", action="store_true", help="overwrite existing output files")
-    parser.add_argument("--gravity", nargs=3, type=float, metavar=("GX", "GY", "GZ"),
+    parser.add_argument("--gravity", nargs=3, type=finite_float, metavar=("GX", "GY", "GZ"),
                         help="gravity in the mocap frame, m/s^2, checked against the data "
                         "(default: recording.yaml's, else estimated; with --paper 0 -9.81 0)")
-    parser.add_argument("--max-offset", type=float, default=5.0, metavar="S",
+    parser.add_argument("--max-offset", type=finite_float, default=5.0, metavar="S",
                         help="search the IMU clock offset within +-S s (default 5)")
     parser.add_argument("--paper", action="store_true",
                         help="the paper's calibrations instead: Kabsch mount from still poses "
@@ -73,16 +73,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--angular-rate", action="store_true",
                         help="also pair gyroscope rates with mocap rates (for recordings "
                         "without still poses in different orientations)")
-    parser.add_argument("--gyroscope-threshold", type=float, default=DEFAULT_GYROSCOPE_THRESHOLD,
+    parser.add_argument("--gyroscope-threshold", type=finite_float,
+                        default=DEFAULT_GYROSCOPE_THRESHOLD,
                         metavar="RAD_S", help="still when |gyroscope| is below this, rad/s "
                         f"(default {DEFAULT_GYROSCOPE_THRESHOLD})")
-    parser.add_argument("--gravity-tolerance", type=float, default=DEFAULT_GRAVITY_TOLERANCE,
+    parser.add_argument("--gravity-tolerance", type=finite_float, default=DEFAULT_GRAVITY_TOLERANCE,
                         metavar="M_S2", help="still when ||f| - |g|| is below this, m/s^2 "
                         f"(default {DEFAULT_GRAVITY_TOLERANCE})")
-    parser.add_argument("--still-duration", type=float, default=DEFAULT_STILL_DURATION,
+    parser.add_argument("--still-duration", type=finite_float, default=DEFAULT_STILL_DURATION,
                         metavar="S", help=f"shortest still pose, s (default "
                         f"{DEFAULT_STILL_DURATION})")
-    parser.add_argument("--min-pose-angle", type=float, default=DEFAULT_MIN_POSE_ANGLE,
+    parser.add_argument("--min-pose-angle", type=finite_float, default=DEFAULT_MIN_POSE_ANGLE,
                         metavar="DEG", help="poses must span this angle, degrees (default "
                         f"{DEFAULT_MIN_POSE_ANGLE:g})")
     parser.add_argument("--zeros-occluded", action="store_true",

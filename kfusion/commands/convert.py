@@ -36,6 +36,7 @@ import yaml
 
 from kfusion.commands.check import summarise
 from kfusion.conventions import OPTITRACK_GRAVITY, Z_UP_GRAVITY
+from kfusion.guards import finite_float
 from kfusion.profiles import imu_profile
 from kfusion.readers.broad import read_broad
 from kfusion.readers.c3d import labelled_bodies, read_c3d_labels, read_c3d_markers
@@ -93,11 +94,11 @@ def _add_imu_options(parser: argparse.ArgumentParser, body: str, *,
     else:
         parser.add_argument("--imu", required=True, metavar="IMU.csv",
                             help="IMU samples: t, ax, ay, az, gx, gy, gz (s, m/s^2, rad/s)")
-    parser.add_argument("--imu-to-body", nargs=4, type=float, metavar=("W", "X", "Y", "Z"),
+    parser.add_argument("--imu-to-body", nargs=4, type=finite_float, metavar=("W", "X", "Y", "Z"),
                         help=f"unit quaternion IMU -> {body}, if known (default: left out "
                         "of recording.yaml; then run kfusion calibrate DIR --out "
                         "DIR/recording.yaml --force)")
-    parser.add_argument("--lever-arm", nargs=3, type=float, metavar=("X", "Y", "Z"),
+    parser.add_argument("--lever-arm", nargs=3, type=finite_float, metavar=("X", "Y", "Z"),
                         help=f"IMU position in the {body} frame, m (optional)")
     parser.add_argument("--imu-profile", metavar="NAME",
                         help="IMU profile name written as recording.yaml's imu (optional)")
@@ -115,7 +116,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     _add_imu_options(motive, "rigid body")
     motive.add_argument("--rigid-body", metavar="NAME",
                         help="rigid body to read (default: the only one in the export)")
-    motive.add_argument("--gravity", nargs=3, type=float, metavar=("GX", "GY", "GZ"),
+    motive.add_argument("--gravity", nargs=3, type=finite_float, metavar=("GX", "GY", "GZ"),
                         default=list(OPTITRACK_GRAVITY),
                         help="gravity in the mocap world, m/s^2 (default: y-up 0 -9.81 0)")
     motive.add_argument("--name", help="recording name (default: the take file's stem)")
@@ -150,10 +151,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="convert every body of the file (every prefix NAME of a label "
                      "NAME:...), with --imu NAME=IMU.csv for each")
     _add_imu_options(c3d, "rigid body", several_bodies=True)
-    c3d.add_argument("--gravity", nargs=3, type=float, metavar=("GX", "GY", "GZ"),
+    c3d.add_argument("--gravity", nargs=3, type=finite_float, metavar=("GX", "GY", "GZ"),
                      help="gravity in the mocap world, m/s^2 (default: minus the file's "
                      "POINT:Y_SCREEN axis, else z-up 0 0 -9.81 as Vicon and Qualisys)")
-    c3d.add_argument("--max-residual", type=float, default=DEFAULT_MAX_RESIDUAL * 1e3,
+    c3d.add_argument("--max-residual", type=finite_float, default=DEFAULT_MAX_RESIDUAL * 1e3,
                      metavar="MM", help="a frame whose worst marker misses the fitted cluster by "
                      "more is left occluded (a swapped marker), mm (default %(default)g)")
     c3d.add_argument("--name", help="recording name (default: the file's stem; for several "

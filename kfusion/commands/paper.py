@@ -10,7 +10,7 @@ import argparse
 from pathlib import Path
 
 from kfusion.experiment import write_table_csv
-from kfusion.guards import atomic_write_text
+from kfusion.guards import atomic_write_text, finite_float
 
 NAME = "paper"
 HELP = "Reproduce the paper's Table 1 and use-case table with the baseline on the simulator."
@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="paper-output", metavar="DIR",
                         help="folder for table1.csv, use_case.csv, per_gap.csv and report.md "
                         "(default: paper-output)")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
+    parser.add_argument("--duration", type=finite_float, default=None, metavar="S",
                         help="length of each simulation, s (at least 5; default: the "
                         "scenario's, 40 s arm lift and 45 s pick tool)")
 

@@ -6,6 +6,7 @@ import argparse
 
 import numpy as np
 
+from kfusion.guards import finite_float
 from kfusion.recording import occlusion_durations
 from kfusion.simulate import (
     PLACEMENTS,
@@ -29,14 +30,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output recording folder (created; existing files are replaced)")
     parser.add_argument("--imu", default="mpu9255",
                         help="IMU profile: mpu9255, um7 or broad (default: mpu9255)")
-    parser.add_argument("--gap-min", type=float, default=0.1, metavar="S",
+    parser.add_argument("--gap-min", type=finite_float, default=0.1, metavar="S",
                         help="shortest occlusion, s (default: 0.1)")
-    parser.add_argument("--gap-max", type=float, default=0.3, metavar="S",
+    parser.add_argument("--gap-max", type=finite_float, default=0.3, metavar="S",
                         help="longest occlusion, s (default: 0.3)")
     parser.add_argument("--placement", default="random", choices=PLACEMENTS,
                         help="where occlusions fall: random, mid_motion (Type 1, at speed) or "
                         "direction_change (Type 2, where the arm turns round) (default: random)")
-    parser.add_argument("--spacing", type=float, default=1.5, metavar="S",
+    parser.add_argument("--spacing", type=finite_float, default=1.5, metavar="S",
                         help="visible mocap required before each occlusion, s (default: 1.5)")
     parser.add_argument("--markers", action="store_true",
                         help="simulate a 4-marker cluster: occlusions hide some of its markers "
@@ -45,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--c3d", metavar="FILE.c3d", default=None,
                         help="with --markers: also write the simulated markers as a C3D file "
                         "(needs ezc3d)")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
+    parser.add_argument("--duration", type=finite_float, default=None, metavar="S",
                         help="length of the simulation, s (default: the scenario's, 30-45 s)")
 
 

@@ -16,6 +16,7 @@ import math
 from collections.abc import Iterator
 
 from kfusion.conventions import LOST, imu_time_to_mocap
+from kfusion.guards import finite_float
 from kfusion.kalman.events import IMU_STREAM, merge_events
 from kfusion.recording import Recording, read_recording
 from kfusion.tracker import METHODS, Estimate, Tracker
@@ -106,13 +107,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("folder", metavar="DIR", help="recording folder")
     parser.add_argument("--every", type=int, default=10, metavar="N",
                         help="print a line after every N-th mocap frame (default: 10)")
-    parser.add_argument("--confidence", type=float, default=0.99,
+    parser.add_argument("--confidence", type=finite_float, default=0.99,
                         help="probability of the printed bound (default: 0.99)")
     parser.add_argument("--method", choices=METHODS, default="kalman",
                         help="estimator (default: kalman)")
     parser.add_argument("--count", type=int, default=None, metavar="K",
                         help="stop after K lines (default: the whole recording)")
-    parser.add_argument("--start", type=float, default=None, metavar="S",
+    parser.add_argument("--start", type=finite_float, default=None, metavar="S",
                         help="print only from this time on, s (earlier samples are still "
                         "streamed, so the tracker has its history)")
     parser.add_argument("--health", action="store_true",
@@ -130,6 +131,10 @@ def run(args: argparse.Namespace) -> int:
                          f"{args.confidence}")
     if args.count is not None and args.count < 1:
         raise ValueError(f"--count: expected a positive integer, got {args.count}")
+    last = float(recording.mocap.t[-1])
+    if args.start is not None and args.start > last:
+        raise ValueError(f"--start: expected a time up to the last mocap frame's, "
+                         f"{last:.3f} s, got {args.start:g}")
     tracker = Tracker.from_recording_info(recording.info, method=args.method)
     printed = shown = 0
     for _, estimate in stream_recording(recording, tracker):

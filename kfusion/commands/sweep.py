@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from kfusion.config import load_sweep_config
+from kfusion.guards import finite_float
 from kfusion.sweep import SweepStore, format_summary, plan_sweep, run_sweep
 
 NAME = "sweep"
@@ -27,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="local worker processes (default: number of CPUs)")
     parser.add_argument("--scheduler", metavar="ADDRESS",
                         help="run on a Dask distributed cluster, e.g. tcp://scheduler-host:8786")
-    parser.add_argument("--scheduler-timeout", type=float, default=20.0, metavar="SECONDS",
+    parser.add_argument("--scheduler-timeout", type=finite_float, default=20.0, metavar="SECONDS",
                         help="how long to try connecting to the scheduler (default 20 s)")
     parser.add_argument("--quick", action="store_true",
                         help="smoke run: first two values per grid axis, first seed, small data")
