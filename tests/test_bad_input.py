@@ -443,6 +443,12 @@ def test_a_simulation_longer_than_an_hour_is_refused(tmp_path, capsys):
     assert "duration: expected 5-3600 s" in message and not (tmp_path / "s").exists()
 
 
+def test_paper_tables_longer_than_an_hour_are_refused(tmp_path, capsys):
+    """``kfusion paper --duration`` goes through the same limit (untried by the fuzzing)."""
+    message = cli_error(capsys, ["paper", "--duration", "1e9", "--out", str(tmp_path / "p")])
+    assert "duration: expected 5-3600 s" in message and not (tmp_path / "p").exists()
+
+
 @pytest.mark.parametrize("value", ["1e9", "-1", "0"])
 def test_calibrate_max_offset_must_be_a_sane_search_range(folder, capsys, value):
     """``--max-offset 1e9`` asked numpy for 2.9 TiB (MemoryError), -1 printed "+- -1 s" (nan,
