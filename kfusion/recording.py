@@ -561,6 +561,8 @@ def read_imu(path: str | Path) -> ImuSamples:
             row=int(row) + 1,
             column=IMU_COLUMNS[col],
         )
+    samples = ImuSamples(t=values[:, 0], accelerometer=values[:, 1:4], gyroscope=values[:, 4:7])
+    check_imu_units(path.name, samples)  # first: a unit mistake gets its own advice
     for first, kind, limit, unit in ((1, "accelerometer", MAX_ACCELEROMETER_VALUE, "m/s^2"),
                                      (4, "gyroscope", MAX_GYROSCOPE_VALUE, "rad/s")):
         beyond = np.abs(values[:, first:first + 3]) > limit
@@ -571,15 +573,13 @@ def read_imu(path: str | Path) -> ImuSamples:
                 f"{kind} value {float(values[row, first + col]):.6g} is beyond any body-worn "
                 f"sensor's range; expected |value| <= {limit:g} {unit}",
                 row=int(row) + 1, column=IMU_COLUMNS[first + col])
-    samples = ImuSamples(t=values[:, 0], accelerometer=values[:, 1:4], gyroscope=values[:, 4:7])
-    check_imu_units(path.name, samples)
     return samples
 
 
 def check_imu_units(file: str, samples: ImuSamples) -> None:
     if len(samples) == 0:
         raise RecordingError(file, "no samples")
-    magnitude = float(np.median(np.linalg.norm(samples.accelerometer, axis=1)))
+    magnitude = float(np.median(vector_length(samples.accelerometer, axis=1)))
     low, high = G_UNIT_MAGNITUDE_RANGE
     if low <= magnitude <= high:
         raise RecordingError(
@@ -596,7 +596,7 @@ def check_imu_units(file: str, samples: ImuSamples) -> None:
             "for a worn IMU (wrong unit or not specific force?)",
             column="ax",
         )
-    rate = float(np.percentile(np.linalg.norm(samples.gyroscope, axis=1), 99))
+    rate = float(np.percentile(vector_length(samples.gyroscope, axis=1), 99))
     if rate > MAX_PLAUSIBLE_ANGULAR_RATE:
         raise RecordingError(
             file,

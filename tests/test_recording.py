@@ -25,7 +25,9 @@ from kfusion.recording import (
     write_recording,
 )
 
-AWKWARD = (0.1 + 0.2, 1e-17, -0.0, 5e-324, 1.0 / 3.0, 2.2250738585072014e-308, 123456789.12345679)
+# floats whose text form must round-trip bit for bit; the last is 17 significant digits within
+# a gyroscope's range (MAX_GYROSCOPE_VALUE: 1.2e8 rad/s is refused as corrupt)
+AWKWARD = (0.1 + 0.2, 1e-17, -0.0, 5e-324, 1.0 / 3.0, 2.2250738585072014e-308, 987.6543210987654)
 
 
 def unit_quaternions(rng: np.random.Generator, count: int) -> np.ndarray:
@@ -229,7 +231,7 @@ CASES: list[tuple[str, Mutation, str]] = [
      r"^recording\.yaml, key 'imu_to_body': expected a list of 4 finite numbers, got \[1, 0, 0\]"),
     ("lever arm mm", lambda f: set_info(f, lever_arm=[30, 0, 0]),
      r"^recording\.yaml, key 'lever_arm': lever arm length is 30, which looks like mm; "
-     r"expected m$"),
+     r"expected m \(at most 2 m\)$"),
     ("name not text", lambda f: set_info(f, name=12),
      r"^recording\.yaml, key 'name': expected a string, got 12$"),
     ("imu not text", lambda f: set_info(f, imu=["mpu9255"]),
