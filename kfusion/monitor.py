@@ -93,14 +93,27 @@ Offsets on the fixes before an occlusion (:meth:`ConsistencyMonitor.cover_rivals
 blob partly hidden as the body is lost shifts the solved body for the last few frames, the
 filter takes part of the shift in (position ``a d``, velocity ``b d``:
 :func:`edge_sensitivity`), and the gap is bridged from it with a bound that knows nothing of it.
-The shadow gaps start from clean fixes and cannot show it; the fixes that end real gaps can.
-Each gives the offset variance it needed (:func:`edge_variance_needed`, shape ``(a + b H)^2``
-at the gap's length H); while the mean NIS of the last ``gap_end_window`` of them fails the
-windowed test high (against the predictions as the shadow gaps scaled them: what those
-explain is no edge), and until it is back to 3, the bound h s into a gap adds ``sigma^2 (a + b
-h)^2`` per axis, sigma^2 their ``matching_quantile``, and their ``mean NIS / 3`` scales the
-gap's covariance. The first gaps are bridged before the test has their evidence (a shift the
-size of the mocap noise per frame does not show in the fixes' own NIS; a larger one is a step:
+The shadow gaps start from clean fixes and cannot show it. Two tests can, each a windowed test
+over the last ``gap_end_window`` occlusions:
+
+* the fixes that end real gaps: each gives its NIS and the offset variance it needed
+  (:func:`edge_variance_needed`, shape ``(a + b H)^2`` at the gap's length H), against the
+  predictions as the shadow gaps scaled them (what those explain is no edge);
+* the fixes before each occlusion, tested when it starts: an offset d on the last
+  ``edge_frames`` of them shows in their innovations with a known signature ``y_j = g_j d +
+  w_j`` (:func:`edge_innovation_signature`), and the likelihood ratio ``T = d^T J d^``
+  (:func:`edge_offset_evidence`) is chi-square(3), as a fix's NIS, without one. These fixes are
+  known before the gap is bridged, so this test can cover the gap they lead into, where the
+  first waits for gaps to end; with the body drifting 1.5 mm over the 5 frames before each
+  occlusion it fired after 1-2 occlusions, the gap ends' test after 6-7.
+
+While either fails high (mean beyond the windowed limit), until its mean is back to 3, the bound
+h s into a gap adds ``sigma^2 (a + b h)^2`` per axis, sigma^2 the ``matching_quantile`` of the
+variances both kept (the gap starts': ``(|d^|^2 - tr J^-1) / 3``, a moment estimate), the gap
+ends' ``mean NIS / 3`` scales the gap's covariance, and each fix's bound holds an offset of
+``min(sigma^2, sigma_step^2)`` (:meth:`ConsistencyMonitor.edge_offset_variance`). The first
+occlusion is bridged before either test has evidence (a shift the size of the mocap noise per
+frame does not show in the fixes' own NIS; a larger one is a step:
 :meth:`ConsistencyMonitor._step`). The smoother tests the same offline, by hiding the fixes
 before each gap (:func:`kfusion.kalman.smoother.edge_holdout`).
 
@@ -694,6 +707,66 @@ def smoothed_edge_sensitivity(accelerometer_noise_density: float, mocap_noise: f
     return tuple(float(value) for value in smoothed[::-1, 0])
 
 
+@lru_cache(maxsize=64)
+def edge_innovation_signature(accelerometer_noise_density: float, mocap_noise: float,
+                              period_s: float, frames: int) -> tuple[float, ...]:
+    """Innovation of each of the last ``frames`` fixes before a gap per unit offset d on all of
+    them (the offset of :func:`edge_sensitivity`), for the steady-state filter there, oldest
+    first: the filter's state moves by ``s_j d`` after the j-th offset fix (``s_0 = 0``,
+    ``s_j = (I - K H) F s_{j-1} + K``), so the j-th fix's innovation carries
+
+        g_j d,  g_j = 1 - H F s_{j-1}
+
+    (g_1 = 1: the first offset fix is all offset; the later ones less, as the filter follows).
+    Per axis, dimensionless."""
+    gain, _ = _steady_state(accelerometer_noise_density, mocap_noise, period_s)
+    F, _ = _constant_velocity_model(accelerometer_noise_density, period_s)
+    closed_loop = (np.eye(2) - np.outer(gain, [1.0, 0.0])) @ F
+    state = np.zeros(2)
+    signature = []
+    for _ in range(frames):
+        signature.append(1.0 - float((F @ state)[0]))
+        state = closed_loop @ state + gain
+    return tuple(signature)
+
+
+def edge_offset_evidence(innovations: Sequence[NDArray[np.float64]],
+                         covariances: Sequence[NDArray[np.float64]],
+                         signature: Sequence[float]
+                         ) -> tuple[float, NDArray[np.float64], NDArray[np.float64]] | None:
+    """The generalised likelihood ratio test of an offset d (3,) m on the last n fixes before a
+    gap, from their innovations y_j (3,) m and covariances S_j (3, 3) m^2 (oldest first) and the
+    offset's signature g_j (:func:`edge_innovation_signature`): with the offset
+    ``y_j = g_j d + w_j``, w_j white with covariance S_j, so
+
+        J = sum_j g_j^2 S_j^-1,   d^ = J^-1 sum_j g_j S_j^-1 y_j,   Cov(d^) = J^-1,
+        T = d^T J d^ ~ chi-square(3) when there is no offset (mean 3, as a fix's NIS).
+
+    Returns (T, d^ (3,) m, J^-1 (3, 3) m^2); None when an input is not finite or J is
+    singular. (Scalar check: one fix, g = 1, S = 1, y = 2: J = 1, d^ = 2, T = 4.)"""
+    information = np.zeros((3, 3))
+    weighted = np.zeros(3)
+    for g, y, S in zip(signature, innovations, covariances, strict=True):
+        y = np.asarray(y, dtype=float)
+        S = np.asarray(S, dtype=float)
+        if not (np.isfinite(y).all() and np.isfinite(S).all()):
+            return None
+        try:
+            inverse = np.linalg.inv(0.5 * (S + S.T))
+        except np.linalg.LinAlgError:
+            return None
+        information += g * g * inverse
+        weighted += g * (inverse @ y)
+    try:
+        covariance = np.asarray(np.linalg.inv(information), dtype=np.float64)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.isfinite(covariance).all():
+        return None
+    offset = covariance @ weighted
+    return float(offset @ weighted), offset, covariance
+
+
 def edge_frames(edge_s: float, period_s: float) -> int:
     """Fixes within ``edge_s`` s before an occlusion at one every ``period_s`` s (at least 1):
     ``max(1, round(edge_s / period_s))``."""
@@ -1067,12 +1140,14 @@ class MonitorParameters:
             NIS window had scaled them, is beyond the windowed test's upper limit, the gaps
             start from fixes that were off, and until that mean is back to 3 the bound in a
             gap holds an offset on the fixes before it as large as the largest of them needed
-            (and their ``mean NIS / 3`` scales the gap's covariance). Measured with the body
-            drifting 1.5 mm off over the 5 frames before each occlusion (5 seeds of 30 s):
-            10.4 % of the Tracker's rows beyond the 99 % bound before, 3.4 % after, all in
-            the gaps before the test has enough of them (it fires after 2-7 gaps when the
-            offsets start with the recording, later when clean gaps came first); the rows
-            after the eighth gap of 3 seeds: 47 % beyond before, none after.
+            (and their ``mean NIS / 3`` scales the gap's covariance); the same window of
+            occlusions holds the test of the fixes before them
+            (:meth:`ConsistencyMonitor._gap_start`). Measured with the body drifting 1.5 mm
+            off over the 5 frames before each occlusion (5 seeds of 30 s): 10.4 % of the
+            Tracker's rows beyond the 99 % bound without the gap ends' test, 2.7 % with it
+            (it fires after 2-7 gaps), 0.66 % with the test of the fixes before each gap too
+            (it fires after 1-2), the gap ends' scale applied while either is on, and a fix's
+            cover holding the offset whole (:meth:`ConsistencyMonitor.edge_offset_variance`).
         edge_s: how long before an occlusion the fixes may be off (s; ``edge_frames`` of
             them at the fixes' rate, 3 at 100 Hz): on BROAD's real occlusions the frames
             within about 10 ms of one deviate from the motion 1.3-2.3x more than the others,
@@ -1190,8 +1265,11 @@ class MonitorReport:
             prediction was kept as a rival (steps below the gate: a shifted marker cluster,
             or motion the IMU did not show).
         edge_offset_std_m: 1-sigma per axis (m) of an offset on the fixes before a gap that the
-            last real gaps' ends showed (:meth:`ConsistencyMonitor.cover_rivals`; 0 while they
-            agree with their predictions).
+            last real gaps' ends or the fixes before them showed
+            (:meth:`ConsistencyMonitor.cover_rivals`; 0 while both agree with the model).
+        gap_start_statistic: the mean of the statistic T of the fixes before the last
+            ``gap_end_window`` occlusions (:func:`edge_offset_evidence`; chi-square(3), mean
+            3, without an offset on them), NaN before the first.
     """
 
     nis: NisTest
@@ -1204,6 +1282,7 @@ class MonitorReport:
     clock_offset_std_s: float = math.nan
     steps: int = 0
     edge_offset_std_m: float = 0.0
+    gap_start_statistic: float = math.nan
 
     def as_dict(self) -> dict[str, object]:
         """Plain dict for health output."""
@@ -1212,7 +1291,8 @@ class MonitorReport:
                 "std_scale": self.std_scale, "bridging_allowed": self.bridging_allowed,
                 "suspected_cause": self.suspected_cause, "clock_offset_s": self.clock_offset_s,
                 "clock_offset_std_s": self.clock_offset_std_s, "steps": self.steps,
-                "edge_offset_std_m": self.edge_offset_std_m}
+                "edge_offset_std_m": self.edge_offset_std_m,
+                "gap_start_statistic": self.gap_start_statistic}
 
 
 class HorizonScales:
@@ -1354,6 +1434,13 @@ class ConsistencyMonitor:
         self._gap_end_edge: deque[float] = deque(maxlen=self.params.gap_end_window)
         self._edge_value: float | None = None  # _edge_variance(), None: not computed
         self._edge_on = False  # the gap ends' test failed high, not yet back to 3 (_gap_end)
+        # the fixes before the last gap_end_window occlusions (_gap_start): the edge offset
+        # test's statistic (edge_offset_evidence) and the offset variance each needed, and the
+        # innovations (y (3,) m, S (3, 3) m^2, copies) of the last fixes of the running run
+        self._gap_start_statistic: deque[float] = deque(maxlen=self.params.gap_end_window)
+        self._gap_start_edge: deque[float] = deque(maxlen=self.params.gap_end_window)
+        self._gap_start_on = False  # their test failed high, not yet back to 3 (_gap_start)
+        self._run_innovations: tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...] = ()
         self._fix_period = math.inf  # s between the last two fixes in a run (not a gap)
         # values derived from _nis and _scales, kept until those change (in mocap(), at a fused
         # fix and when a shadow gap closes) or a restore replaces them with the snapshot's own
@@ -1439,6 +1526,7 @@ class ConsistencyMonitor:
         estimate at t before this frame (needed only when :meth:`wants_prior`)."""
         self._widening_value = None  # the state changes from here
         kind, nis, params = outcome.kind, outcome.nis, self.params
+        self._gap_start(t, position, outcome)  # before _last_fix takes this frame
         if kind in USED_OUTCOMES:
             if self._first_fix_t == math.inf:
                 self._first_fix_t = t
@@ -1657,11 +1745,56 @@ class ConsistencyMonitor:
         self._edge_value = None
         self._forget_derived(nis=False)  # the scale table reads _gap_end_scale
 
+    def _gap_start(self, t: float, position: NDArray[np.float64] | None,
+                   outcome: UpdateOutcome) -> None:
+        """Keep the innovations of the last ``edge_frames`` accepted fixes of a run (a fix ending
+        a gap starts a new run: its prediction spans the gap); at the first frame of an
+        occlusion after them (no fix, nothing fused), test them for an offset
+        (:func:`edge_offset_evidence` with :func:`edge_innovation_signature`): keep the
+        statistic T and the per-axis variance of the offset it shows, the moment estimate
+        ``max(0, (|d^|^2 - tr J^-1) / 3)`` (``E|d^|^2 = |d|^2 + tr J^-1``; the variance
+        :func:`edge_variance_needed` gives d^ against ``J^-1`` was far too small: d^ mostly
+        lies inside J^-1's own 99 % ellipsoid), and switch the gap-start test on when the mean
+        T of the last ``gap_end_window`` occlusions fails the windowed test high, off when it
+        is back to 3 (:func:`failing_high`). Unlike the fix ending a gap, these fixes are known
+        before the gap is bridged, so the edge term can cover the gap they lead into."""
+        kind, params = outcome.kind, self.params
+        period = round(self._fix_period, 4)  # as _edge_shape
+        if not math.isfinite(period) or period <= 0:
+            self._run_innovations = ()
+            return
+        frames = edge_frames(params.edge_s, period)
+        if kind == ACCEPTED and position is not None and outcome.y is not None \
+                and outcome.S is not None and self._last_fix is not None \
+                and not reacquired_after_gap(t - self._last_fix[0], params.settle_after_s):
+            kept = (np.array(outcome.y, dtype=float), np.array(outcome.S, dtype=float))
+            self._run_innovations = (*self._run_innovations, kept)[-frames:]
+            return
+        if position is None and kind not in USED_OUTCOMES \
+                and len(self._run_innovations) == frames:
+            shadow = self._shadow.params
+            signature = edge_innovation_signature(shadow.accelerometer_noise_density,
+                                                  shadow.mocap_position_noise, period, frames)
+            found = edge_offset_evidence([y for y, _ in self._run_innovations],
+                                         [S for _, S in self._run_innovations], signature)
+            if found is not None:
+                statistic, offset, covariance = found
+                self._gap_start_statistic.append(statistic)
+                self._gap_start_edge.append(max(0.0, (float(offset @ offset)
+                                                      - float(np.trace(covariance))) / 3.0))
+                self._gap_start_on = failing_high(self._gap_start_statistic,
+                                                  params.nis_probability, self._gap_start_on)
+                self._edge_value = None
+                self._forget_derived(nis=False)  # the scale table reads _gap_end_scale
+        self._run_innovations = ()
+
     def _gap_ends_mean_nis(self) -> float:
         """The mean NIS of the fixes that ended the last ``gap_end_window`` real gaps while the
         edge term is on (:meth:`_gap_end`: the gaps' predictions were worse than their bound
-        said), else 0."""
-        if not self._edge_on:
+        said; or :meth:`_gap_start`: the fixes before the gaps were off, so the gaps'
+        predictions are suspect and their ends measure by how much, before their own test has
+        enough of them), else 0 (also before a gap has ended)."""
+        if not (self._edge_on or self._gap_start_on) or not self._gap_end_nis:
             return 0.0
         return sum_mean(self._gap_end_nis)
 
@@ -1677,8 +1810,9 @@ class ConsistencyMonitor:
         else the ``matching_quantile`` of the variances they needed
         (:func:`edge_variance_needed`)."""
         if self._edge_value is None:
-            self._edge_value = 0.0 if self._gap_ends_mean_nis() == 0.0 else \
-                quantile_matching_scale(list(self._gap_end_edge), self.params.matching_quantile)
+            self._edge_value = 0.0 if not (self._edge_on or self._gap_start_on) else \
+                quantile_matching_scale([*self._gap_end_edge, *self._gap_start_edge],
+                                        self.params.matching_quantile)
         return self._edge_value
 
     def _mocap_noise_variance(self) -> float:
@@ -1901,14 +2035,18 @@ class ConsistencyMonitor:
         """Per-axis variance (m^2) at t (s) at or after the last fused fix from an offset on the
         fixes before it: ``sigma^2 (a + b h)^2`` h s after it (:meth:`_edge_variance`,
         :func:`edge_sensitivity`), 0 before it and while the real gaps' ends agree with their
-        predictions. At the fix itself (h = 0) ``min(sigma^2, sigma_step^2) a^2``: online no
-        fix is known to be the last before an occlusion until the occlusion comes, and the
-        fused position already carries ``a`` of an offset on the fixes it ends (when the fixes
-        before occlusions drift 1.5 mm over 5 frames, those fixes alone put 1 % of the rows
-        beyond the bound). sigma^2 is matched on the gap ends, where the IMU's own errors weigh
-        in (one ordinary miss at a gap end set 4.3 mm for 1.5 mm offsets, and every fix's bound
-        9x wider); at a fix it is capped by :func:`step_offset_variance`, since a larger
-        offset is a step and the step rule already keeps its prediction as a rival."""
+        predictions. At the fix itself (h = 0) ``min(sigma^2, sigma_step^2)``: online no fix
+        is known to be the last before an occlusion until the occlusion comes, so every fix
+        holds the offset while the edge term is on. Whole, not the ``a`` (0.36 at 100 Hz) that
+        :func:`edge_sensitivity` gives for a step on the last ``edge_frames`` fixes: an offset
+        that builds up over more frames is followed further (the filter tracks a slow drift
+        with little lag), and with the body drifting 1.5 mm over 5 frames the fused position
+        at the last fix carried 0.6-0.7 of it; with ``a^2`` those fixes were 0.5 % of the rows
+        beyond the bound, up to 2.0x, and 0.06 % without it. sigma^2 is matched on the gap
+        ends, where the IMU's own errors weigh in (one ordinary miss at a gap end set 4.3 mm
+        for 1.5 mm offsets, and every fix's bound 9x wider); at a fix it is capped by
+        :func:`step_offset_variance`, since a larger offset is a step and the step rule
+        already keeps its prediction as a rival."""
         if self._last_fix is None or t < self._last_fix[0]:
             return 0.0
         variance = self._edge_variance()
@@ -1916,7 +2054,7 @@ class ConsistencyMonitor:
             return 0.0
         horizon = t - self._last_fix[0]
         if horizon == 0.0:
-            variance = min(variance, step_offset_variance(
+            return min(variance, step_offset_variance(
                 self._shadow.params.mocap_position_noise ** 2, self.params))
         return variance * self._edge_shape(horizon)
 
@@ -2054,7 +2192,9 @@ class ConsistencyMonitor:
                              bridging_allowed=self.bridging_allowed, suspected_cause=cause,
                              clock_offset_s=math.nan if clock is None else clock[0],
                              clock_offset_std_s=math.nan if clock is None else clock[1],
-                             steps=self._step_count, edge_offset_std_m=math.sqrt(edge))
+                             steps=self._step_count, edge_offset_std_m=math.sqrt(edge),
+                             gap_start_statistic=sum_mean(self._gap_start_statistic)
+                             if self._gap_start_statistic else math.nan)
 
 
 _NO_Y: Final = np.zeros(3)

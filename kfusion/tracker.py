@@ -460,13 +460,14 @@ class TrackerSnapshot:
     _state: Any = field(repr=False, compare=False)
 
 
-SNAPSHOT_FORMAT: Final = 5
+SNAPSHOT_FORMAT: Final = 6
 """Version of the state a :class:`TrackerSnapshot` holds (part of its configuration): raised
 whenever the estimator's or the monitor's state changes shape, so that a snapshot pickled by
 another version of kfusion is refused by :meth:`Tracker.restore` with a ValueError rather than
 restored and failing later (2: the monitor's sorted horizon rows and per-fix caches; 3: the
 time of the first fused frame, from which fixes test the model; 4: the running gap's peak
-variance and last frames; 5: the implausible_value rejection counter)."""
+variance and last frames; 5: the implausible_value rejection counter; 6: the test of the
+fixes before each occlusion)."""
 
 _NUMERICAL_ERRORS: Final = (ArithmeticError, ValueError, np.linalg.LinAlgError)
 """What the estimator's maths may raise on overflowing numbers (math.sin(inf), singular S)."""
