@@ -744,20 +744,19 @@ def edge_offset_evidence(innovations: Sequence[NDArray[np.float64]],
 
     Returns (T, d^ (3,) m, J^-1 (3, 3) m^2); None when an input is not finite or J is
     singular. (Scalar check: one fix, g = 1, S = 1, y = 2: J = 1, d^ = 2, T = 4.)"""
-    information = np.zeros((3, 3))
-    weighted = np.zeros(3)
-    for g, y, S in zip(signature, innovations, covariances, strict=True):
-        y = np.asarray(y, dtype=float)
-        S = np.asarray(S, dtype=float)
-        if not (np.isfinite(y).all() and np.isfinite(S).all()):
-            return None
-        try:
-            inverse = np.linalg.inv(0.5 * (S + S.T))
-        except np.linalg.LinAlgError:
-            return None
-        information += g * g * inverse
-        weighted += g * (inverse @ y)
-    try:
+    if len(signature) != len(innovations) or len(signature) != len(covariances):
+        raise ValueError(f"edge_offset_evidence: expected as many innovations, covariances "
+                         f"and signature values, got {len(innovations)}, {len(covariances)} and "
+                         f"{len(signature)}")
+    g = np.asarray(signature, dtype=float)
+    y = np.asarray(innovations, dtype=float).reshape(len(g), 3)
+    S = np.asarray(covariances, dtype=float).reshape(len(g), 3, 3)
+    if not (np.isfinite(y).all() and np.isfinite(S).all()):
+        return None
+    try:  # all k inverses in one call
+        inverses = np.linalg.inv(0.5 * (S + S.transpose(0, 2, 1)))
+        information = np.einsum("k,kij->ij", g * g, inverses)  # J
+        weighted = np.einsum("k,kij,kj->i", g, inverses, y)  # sum_j g_j S_j^-1 y_j
         covariance = np.asarray(np.linalg.inv(information), dtype=np.float64)
     except np.linalg.LinAlgError:
         return None
@@ -1436,11 +1435,14 @@ class ConsistencyMonitor:
         self._edge_on = False  # the gap ends' test failed high, not yet back to 3 (_gap_end)
         # the fixes before the last gap_end_window occlusions (_gap_start): the edge offset
         # test's statistic (edge_offset_evidence) and the offset variance each needed, and the
-        # innovations (y (3,) m, S (3, 3) m^2, copies) of the last fixes of the running run
+        # innovations (y (3,) m, S (3, 3) m^2) of the last edge_frames fixes of the running run
         self._gap_start_statistic: deque[float] = deque(maxlen=self.params.gap_end_window)
         self._gap_start_edge: deque[float] = deque(maxlen=self.params.gap_end_window)
         self._gap_start_on = False  # their test failed high, not yet back to 3 (_gap_start)
-        self._run_innovations: tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...] = ()
+        self._run_innovations: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = \
+            deque(maxlen=1)
+        self._edge_frames_period = math.nan  # _edge_frame_count's rounded period, s, and count
+        self._edge_frames_count = 0
         self._fix_period = math.inf  # s between the last two fixes in a run (not a gap)
         # values derived from _nis and _scales, kept until those change (in mocap(), at a fused
         # fix and when a shadow gap closes) or a restore replaces them with the snapshot's own
@@ -1759,34 +1761,52 @@ class ConsistencyMonitor:
         is back to 3 (:func:`failing_high`). Unlike the fix ending a gap, these fixes are known
         before the gap is bridged, so the edge term can cover the gap they lead into."""
         kind, params = outcome.kind, self.params
-        period = round(self._fix_period, 4)  # as _edge_shape
-        if not math.isfinite(period) or period <= 0:
-            self._run_innovations = ()
+        frames = self._edge_frame_count()
+        run = self._run_innovations
+        if frames == 0:  # the fixes' period is not known yet
+            run.clear()
             return
-        frames = edge_frames(params.edge_s, period)
-        if kind == ACCEPTED and position is not None and outcome.y is not None \
-                and outcome.S is not None and self._last_fix is not None \
-                and not reacquired_after_gap(t - self._last_fix[0], params.settle_after_s):
-            kept = (np.array(outcome.y, dtype=float), np.array(outcome.S, dtype=float))
-            self._run_innovations = (*self._run_innovations, kept)[-frames:]
+        y, S, last = outcome.y, outcome.S, self._last_fix
+        if kind == ACCEPTED and position is not None and y is not None and S is not None \
+                and last is not None \
+                and not reacquired_after_gap(t - last[0], params.settle_after_s):
+            # kept without a copy: every producer builds y and S new per update (the compiled
+            # kernel's outputs, KalmanFusion's locals) or passes rows of the batch run's
+            # arrays, which nothing writes after the kernel
+            if run.maxlen != frames:
+                run = self._run_innovations = deque(run, maxlen=frames)
+            run.append((y, S))
             return
         if position is None and kind not in USED_OUTCOMES \
-                and len(self._run_innovations) == frames:
+                and len(run) == frames:
             shadow = self._shadow.params
             signature = edge_innovation_signature(shadow.accelerometer_noise_density,
-                                                  shadow.mocap_position_noise, period, frames)
-            found = edge_offset_evidence([y for y, _ in self._run_innovations],
-                                         [S for _, S in self._run_innovations], signature)
+                                                  shadow.mocap_position_noise,
+                                                  round(self._fix_period, 4), frames)
+            found = edge_offset_evidence([y for y, _ in run], [S for _, S in run], signature)
             if found is not None:
                 statistic, offset, covariance = found
                 self._gap_start_statistic.append(statistic)
                 self._gap_start_edge.append(max(0.0, (float(offset @ offset)
                                                       - float(np.trace(covariance))) / 3.0))
+                was_on = self._gap_start_on
                 self._gap_start_on = failing_high(self._gap_start_statistic,
-                                                  params.nis_probability, self._gap_start_on)
+                                                  params.nis_probability, was_on)
                 self._edge_value = None
-                self._forget_derived(nis=False)  # the scale table reads _gap_end_scale
-        self._run_innovations = ()
+                if self._gap_start_on != was_on:  # the scale table reads _gap_end_scale
+                    self._forget_derived(nis=False)
+        run.clear()
+
+    def _edge_frame_count(self) -> int:
+        """:func:`edge_frames` at the fixes' period rounded as in :meth:`_edge_shape`, 0 before
+        that period is known; computed again only when the rounded period changes (every frame
+        reads it)."""
+        period = round(self._fix_period, 4)
+        if period != self._edge_frames_period:
+            self._edge_frames_period = period
+            self._edge_frames_count = edge_frames(self.params.edge_s, period) \
+                if math.isfinite(period) and period > 0 else 0
+        return self._edge_frames_count
 
     def _gap_ends_mean_nis(self) -> float:
         """The mean NIS of the fixes that ended the last ``gap_end_window`` real gaps while the
