@@ -271,11 +271,13 @@ def test_a_fix_ending_a_gap_keeps_its_prediction_as_a_rival_by_hand():
     def edge(at):
         return monitor.edge_offset_variance(at) * np.eye(3)
 
-    assert edge(t)[0, 0] > 0 and edge(t + life)[0, 0] > edge(t)[0, 0]
-    # at the fix, sigma^2 capped by the largest offset below the step rule (2.7 R)
+    assert edge(t)[0, 0] > 0
+    # at the fix, the offset whole, sigma^2 capped by the largest offset below the step rule
+    # (2.7 R); h s later sigma^2 (a + b h)^2
     assert edge(t)[0, 0] == pytest.approx(
-        min(monitor._edge_variance(), step_offset_variance(r, monitor.params))
-        * monitor._edge_shape(0.0))
+        min(monitor._edge_variance(), step_offset_variance(r, monitor.params)))
+    assert edge(t + life)[0, 0] == pytest.approx(
+        monitor._edge_variance() * monitor._edge_shape(life))
     np.testing.assert_allclose(monitor.cover_rivals(t, np.zeros(3), zeros),
                                expected + edge(t), rtol=1e-12)
     # for reacquisition_rival_s, its end included, then no more; not counted as a step
