@@ -102,14 +102,16 @@ over the last ``gap_end_window`` occlusions:
 * the fixes before each occlusion, tested when it starts: an offset d on the last
   ``edge_frames`` of them shows in their innovations with a known signature ``y_j = g_j d +
   w_j`` (:func:`edge_innovation_signature`), and the likelihood ratio ``T = d^T J d^``
-  (:func:`edge_offset_evidence`) is chi-square(3), as a fix's NIS, without one. These fixes are
-  known before the gap is bridged, so this test can cover the gap they lead into, where the
-  first waits for gaps to end; with the body drifting 1.5 mm over the 5 frames before each
-  occlusion it fired after 1-2 occlusions, the gap ends' test after 6-7.
+  (:func:`edge_offset_evidence`; against S times the NIS window's factor, so that innovations
+  too large at every fix are no edge) is chi-square(3), as a fix's NIS, without one. These
+  fixes are known before the gap is bridged, so this test can cover the gap they lead into,
+  where the first waits for gaps to end; with the body drifting 1.5 mm over the 5 frames
+  before each occlusion it fired after 1-2 occlusions, the gap ends' test after 6-7.
 
 While either fails high (mean beyond the windowed limit), until its mean is back to 3, the bound
-h s into a gap adds ``sigma^2 (a + b h)^2`` per axis, sigma^2 the ``matching_quantile`` of the
-variances both kept (the gap starts': ``(|d^|^2 - tr J^-1) / 3``, a moment estimate), the gap
+h s into a gap adds ``sigma^2 (a + b h)^2`` per axis, sigma^2 the larger of the two tests'
+``matching_quantile`` of the variances they kept (the gap starts': ``(|d^|^2 - tr J^-1) / 3``, a
+moment estimate), the gap
 ends' ``mean NIS / 3`` scales the gap's covariance, and each fix's bound holds an offset of
 ``min(sigma^2, sigma_step^2)`` (:meth:`ConsistencyMonitor.edge_offset_variance`). The first
 occlusion is bridged before either test has evidence (a shift the size of the mocap noise per
@@ -1267,8 +1269,9 @@ class MonitorReport:
             last real gaps' ends or the fixes before them showed
             (:meth:`ConsistencyMonitor.cover_rivals`; 0 while both agree with the model).
         gap_start_statistic: the mean of the statistic T of the fixes before the last
-            ``gap_end_window`` occlusions (:func:`edge_offset_evidence`; chi-square(3), mean
-            3, without an offset on them), NaN before the first.
+            ``gap_end_window`` occlusions (:func:`edge_offset_evidence`, each divided by the
+            NIS window's matching factor when that exceeds 1; chi-square(3), mean 3, without
+            an offset on them), NaN before the first.
     """
 
     nis: NisTest
@@ -1786,9 +1789,15 @@ class ConsistencyMonitor:
             found = edge_offset_evidence([y for y, _ in run], [S for _, S in run], signature)
             if found is not None:
                 statistic, offset, covariance = found
-                self._gap_start_statistic.append(statistic)
+                # against S times the NIS window's factor, as the gap ends are tested against
+                # the scaled predictions: innovations too large at every fix (mocap noisier
+                # than configured, a lever arm) are no edge (unscaled, T averaged 5-7 on clean
+                # data with a lever arm and the edge term was on for 47 % of the rows)
+                factor = max(1.0, self._nis_scale())
+                self._gap_start_statistic.append(statistic / factor)
                 self._gap_start_edge.append(max(0.0, (float(offset @ offset)
-                                                      - float(np.trace(covariance))) / 3.0))
+                                                      - factor * float(np.trace(covariance)))
+                                                / 3.0))
                 was_on = self._gap_start_on
                 self._gap_start_on = failing_high(self._gap_start_statistic,
                                                   params.nis_probability, was_on)
@@ -1825,14 +1834,21 @@ class ConsistencyMonitor:
 
     def _edge_variance(self) -> float:
         """Variance (m^2 per axis) of an offset on the fixes before a gap that the bound in a
-        gap allows for (:meth:`cover_rivals`): 0 while the fixes ending the last
-        ``gap_end_window`` real gaps agree with their predictions (:meth:`_gap_ends_mean_nis`);
-        else the ``matching_quantile`` of the variances they needed
-        (:func:`edge_variance_needed`)."""
+        gap allows for (:meth:`cover_rivals`): 0 while neither edge test is on (the fixes
+        ending the last ``gap_end_window`` real gaps agree with their predictions,
+        :meth:`_gap_end`, and the fixes before the last occlusions show no offset,
+        :meth:`_gap_start`); else the larger of the ``matching_quantile`` of the variances the
+        gap ends needed (:func:`edge_variance_needed`) and that of the gap starts' estimates
+        (one quantile over both lists weighed their largest values less: up to 25 % below the
+        gap ends' own)."""
         if self._edge_value is None:
-            self._edge_value = 0.0 if not (self._edge_on or self._gap_start_on) else \
-                quantile_matching_scale([*self._gap_end_edge, *self._gap_start_edge],
-                                        self.params.matching_quantile)
+            value = 0.0
+            if self._edge_on or self._gap_start_on:
+                quantile = self.params.matching_quantile
+                matched = [quantile_matching_scale(list(kept), quantile)
+                           for kept in (self._gap_end_edge, self._gap_start_edge) if kept]
+                value = max((scale for scale in matched if not math.isnan(scale)), default=0.0)
+            self._edge_value = value
         return self._edge_value
 
     def _mocap_noise_variance(self) -> float:

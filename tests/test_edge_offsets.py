@@ -383,3 +383,23 @@ def test_the_gap_start_statistic_is_chi_square_on_clean_fixes():
         assert run.monitor is not None
         assert 1.5 < run.monitor.gap_start_statistic < 4.5, run.monitor.gap_start_statistic
         assert run.monitor.edge_offset_std_m == 0.0
+
+
+def test_fixes_noisier_than_configured_are_no_edge_offset():
+    """Mocap 0.4 mm noisier than configured raises every fix's NIS, and with it T: tested
+    against the raw S, the gap-start test switched the edge term on for 32 % of the rows and
+    health reported an edge offset that was not there (an adversarial review's finding). T is
+    now taken against S times the NIS window's factor, as the gap ends against the scaled
+    predictions."""
+    from kfusion.recording import MocapFrames
+
+    simulation = simulated(seed=0)
+    mocap = simulation.recording.mocap
+    noise = 0.0004 * np.random.default_rng(3).standard_normal(np.shape(mocap.position))
+    recording = simulation.recording.with_mocap(
+        MocapFrames(t=mocap.t, position=np.asarray(mocap.position) + noise,
+                    quaternion=mocap.quaternion))
+    run = run_filter(recording)
+    assert run.monitor is not None
+    assert run.monitor.edge_offset_std_m == 0.0 and run.monitor.suspected_cause != EDGES
+    assert run.monitor.gap_start_statistic < 4.5
