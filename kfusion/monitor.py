@@ -111,9 +111,9 @@ over the last ``gap_end_window`` occlusions:
 While either fails high (mean beyond the windowed limit), until its mean is back to 3, the bound
 h s into a gap adds ``sigma^2 (a + b h)^2`` per axis, sigma^2 the larger of the two tests'
 ``matching_quantile`` of the variances they kept (the gap starts': ``(|d^|^2 - tr J^-1) / 3``, a
-moment estimate), the gap
-ends' ``mean NIS / 3`` scales the gap's covariance, and each fix's bound holds an offset of
-``min(sigma^2, sigma_step^2)`` (:meth:`ConsistencyMonitor.edge_offset_variance`). The first
+moment estimate), the gap ends' ``mean NIS / 3`` scales the gap's covariance, and each fix's
+bound holds an offset of ``min(sigma^2, sigma_step^2)``
+(:meth:`ConsistencyMonitor.edge_offset_variance`). The first
 occlusion is bridged before either test has evidence (a shift the size of the mocap noise per
 frame does not show in the fixes' own NIS; a larger one is a step:
 :meth:`ConsistencyMonitor._step`). The smoother tests the same offline, by hiding the fixes
@@ -1757,7 +1757,8 @@ class ConsistencyMonitor:
         occlusion after them (no fix, nothing fused), test them for an offset
         (:func:`edge_offset_evidence` with :func:`edge_innovation_signature`): keep the
         statistic T and the per-axis variance of the offset it shows, the moment estimate
-        ``max(0, (|d^|^2 - tr J^-1) / 3)`` (``E|d^|^2 = |d|^2 + tr J^-1``; the variance
+        ``max(0, (|d^|^2 - tr J^-1) / 3)`` (``E|d^|^2 = |d|^2 + tr J^-1``; both with S times
+        the NIS window's matching factor f when that exceeds 1: T / f and f J^-1; the variance
         :func:`edge_variance_needed` gives d^ against ``J^-1`` was far too small: d^ mostly
         lies inside J^-1's own 99 % ellipsoid), and switch the gap-start test on when the mean
         T of the last ``gap_end_window`` occlusions fails the windowed test high, off when it
@@ -1785,7 +1786,7 @@ class ConsistencyMonitor:
             shadow = self._shadow.params
             signature = edge_innovation_signature(shadow.accelerometer_noise_density,
                                                   shadow.mocap_position_noise,
-                                                  round(self._fix_period, 4), frames)
+                                                  self._edge_frames_period, frames)
             found = edge_offset_evidence([y for y, _ in run], [S for _, S in run], signature)
             if found is not None:
                 statistic, offset, covariance = found
@@ -2070,19 +2071,19 @@ class ConsistencyMonitor:
     def edge_offset_variance(self, t: float) -> float:
         """Per-axis variance (m^2) at t (s) at or after the last fused fix from an offset on the
         fixes before it: ``sigma^2 (a + b h)^2`` h s after it (:meth:`_edge_variance`,
-        :func:`edge_sensitivity`), 0 before it and while the real gaps' ends agree with their
-        predictions. At the fix itself (h = 0) ``min(sigma^2, sigma_step^2)``: online no fix
-        is known to be the last before an occlusion until the occlusion comes, so every fix
-        holds the offset while the edge term is on. Whole, not the ``a`` (0.36 at 100 Hz) that
-        :func:`edge_sensitivity` gives for a step on the last ``edge_frames`` fixes: an offset
-        that builds up over more frames is followed further (the filter tracks a slow drift
-        with little lag), and with the body drifting 1.5 mm over 5 frames the fused position
-        at the last fix carried 0.6-0.7 of it; with ``a^2`` those fixes were 0.5 % of the rows
-        beyond the bound, up to 2.0x, and 0.06 % without it. sigma^2 is matched on the gap
-        ends, where the IMU's own errors weigh in (one ordinary miss at a gap end set 4.3 mm
-        for 1.5 mm offsets, and every fix's bound 9x wider); at a fix it is capped by
-        :func:`step_offset_variance`, since a larger offset is a step and the step rule
-        already keeps its prediction as a rival."""
+        :func:`edge_sensitivity`), 0 before it and while neither edge test is on
+        (:meth:`_edge_variance`). At the fix itself (h = 0) ``min(sigma^2, sigma_step^2)``:
+        online no fix is known to be the last before an occlusion until the occlusion comes,
+        so every fix holds the offset while the edge term is on. Whole, not the share ``a``
+        (0.36 at 100 Hz) that :func:`edge_sensitivity` gives for a step on the last
+        ``edge_frames`` fixes: an offset that builds up over more frames is followed further
+        (the filter tracks a slow drift with little lag), and with the body drifting 1.5 mm
+        over 5 frames the fused position at the last fix carried 0.6-0.7 of it; with ``a^2``
+        those fixes were 0.5 % of the rows beyond the bound, up to 2.0x, and 0.06 % without it.
+        sigma^2 is matched on the gap ends, where the IMU's own errors weigh in (one ordinary
+        miss at a gap end set 4.3 mm for 1.5 mm offsets, and every fix's bound 9x wider); at a
+        fix it is capped by :func:`step_offset_variance`, since a larger offset is a step and
+        the step rule already keeps its prediction as a rival."""
         if self._last_fix is None or t < self._last_fix[0]:
             return 0.0
         variance = self._edge_variance()
