@@ -99,20 +99,22 @@ over the last ``gap_end_window`` occlusions:
 * the fixes that end real gaps: each gives its NIS and the offset variance it needed
   (:func:`edge_variance_needed`, shape ``(a + b H)^2`` at the gap's length H), against the
   predictions as the shadow gaps scaled them (what those explain is no edge);
-* the fixes before each occlusion, tested when it starts: an offset d on the last
+* the fixes before each occlusion, tested once it is a real gap (``settle_after_s`` after the
+  last fix; a dropped frame is none): an offset d on the last
   ``edge_frames`` of them shows in their innovations with a known signature ``y_j = g_j d +
   w_j`` (:func:`edge_innovation_signature`), and the likelihood ratio ``T = d^T J d^``
   (:func:`edge_offset_evidence`; against S times the NIS window's factor, so that innovations
-  too large at every fix are no edge) is chi-square(3), as a fix's NIS, without one. These
-  fixes are known before the gap is bridged, so this test can cover the gap they lead into,
-  where the first waits for gaps to end; with the body drifting 1.5 mm over the 5 frames
-  before each occlusion it fired after 1-2 occlusions, the gap ends' test after 6-7.
+  too large at every fix are no edge) is chi-square(3), as a fix's NIS, without one. This test
+  comes ``settle_after_s`` into the gap, not at its end, so it can cover the rest of the gap
+  these fixes lead into, where the first waits for gaps to end; with the body drifting 1.5 mm
+  over the 5 frames before each occlusion it fired after 1-2 occlusions, the gap ends' test
+  after 2-7.
 
 While either fails high (mean beyond the windowed limit), until its mean is back to 3, the bound
 h s into a gap adds ``sigma^2 (a + b h)^2`` per axis, sigma^2 the larger of the two tests'
 ``matching_quantile`` of the variances they kept (the gap starts': ``(|d^|^2 - tr J^-1) / 3``, a
 moment estimate), the gap ends' ``mean NIS / 3`` scales the gap's covariance, and each fix's
-bound holds an offset of ``min(sigma^2, sigma_step^2)``
+bound holds an offset of ``min(sigma^2, sigma_step^2)``, and no row of the gap after it less
 (:meth:`ConsistencyMonitor.edge_offset_variance`). The first
 occlusion is bridged before either test has evidence (a shift the size of the mocap noise per
 frame does not show in the fixes' own NIS; a larger one is a step:
@@ -1270,8 +1272,8 @@ class MonitorReport:
             (:meth:`ConsistencyMonitor.cover_rivals`; 0 while both agree with the model).
         gap_start_statistic: the mean of the statistic T of the fixes before the last
             ``gap_end_window`` occlusions (:func:`edge_offset_evidence`, each divided by the
-            NIS window's matching factor when that exceeds 1; chi-square(3), mean 3, without
-            an offset on them), NaN before the first.
+            NIS window's matching factor while the windowed NIS test fails high; chi-square(3),
+            mean 3, without an offset on them), NaN before the first.
     """
 
     nis: NisTest
@@ -1753,24 +1755,33 @@ class ConsistencyMonitor:
     def _gap_start(self, t: float, position: NDArray[np.float64] | None,
                    outcome: UpdateOutcome) -> None:
         """Keep the innovations of the last ``edge_frames`` accepted fixes of a run (a fix ending
-        a gap starts a new run: its prediction spans the gap); at the first frame of an
-        occlusion after them (no fix, nothing fused), test them for an offset
+        a gap starts a new run: its prediction spans the gap; a dropout shorter than
+        ``settle_after_s`` does not end one); at the first frame ``settle_after_s`` or more
+        after them (a real gap: single dropped frames do not fill the window), test them for
+        an offset
         (:func:`edge_offset_evidence` with :func:`edge_innovation_signature`): keep the
         statistic T and the per-axis variance of the offset it shows, the moment estimate
         ``max(0, (|d^|^2 - tr J^-1) / 3)`` (``E|d^|^2 = |d|^2 + tr J^-1``; both with S times
-        the NIS window's matching factor f when that exceeds 1: T / f and f J^-1; the variance
+        the NIS window's matching factor f while its test fails high: T / f and f J^-1; the
+        variance
         :func:`edge_variance_needed` gives d^ against ``J^-1`` was far too small: d^ mostly
         lies inside J^-1's own 99 % ellipsoid), and switch the gap-start test on when the mean
         T of the last ``gap_end_window`` occlusions fails the windowed test high, off when it
-        is back to 3 (:func:`failing_high`). Unlike the fix ending a gap, these fixes are known
-        before the gap is bridged, so the edge term can cover the gap they lead into."""
+        is back to 3 (:func:`failing_high`). Unlike the fix ending a gap, this comes
+        ``settle_after_s`` into the gap, so the edge term can cover the rest of it."""
         kind, params = outcome.kind, self.params
+        run, last = self._run_innovations, self._last_fix
         frames = self._edge_frame_count()
-        run = self._run_innovations
+        if run and last is not None and reacquired_after_gap(t - last[0],
+                                                             params.settle_after_s):
+            # the run has ended in a real gap (a dropout shorter than settle_after_s is none)
+            if len(run) == run.maxlen:
+                self._test_gap_start(run)
+            run.clear()
         if frames == 0:  # the fixes' period is not known yet
             run.clear()
             return
-        y, S, last = outcome.y, outcome.S, self._last_fix
+        y, S = outcome.y, outcome.S
         if kind == ACCEPTED and position is not None and y is not None and S is not None \
                 and last is not None \
                 and not reacquired_after_gap(t - last[0], params.settle_after_s):
@@ -1781,31 +1792,36 @@ class ConsistencyMonitor:
                 run = self._run_innovations = deque(run, maxlen=frames)
             run.append((y, S))
             return
-        if position is None and kind not in USED_OUTCOMES \
-                and len(run) == frames:
-            shadow = self._shadow.params
-            signature = edge_innovation_signature(shadow.accelerometer_noise_density,
-                                                  shadow.mocap_position_noise,
-                                                  self._edge_frames_period, frames)
-            found = edge_offset_evidence([y for y, _ in run], [S for _, S in run], signature)
-            if found is not None:
-                statistic, offset, covariance = found
-                # against S times the NIS window's factor, as the gap ends are tested against
-                # the scaled predictions: innovations too large at every fix (mocap noisier
-                # than configured, a lever arm) are no edge (unscaled, T averaged 5-7 on clean
-                # data with a lever arm and the edge term was on for 47 % of the rows)
-                factor = max(1.0, self._nis_scale())
-                self._gap_start_statistic.append(statistic / factor)
-                self._gap_start_edge.append(max(0.0, (float(offset @ offset)
-                                                      - factor * float(np.trace(covariance)))
-                                                / 3.0))
-                was_on = self._gap_start_on
-                self._gap_start_on = failing_high(self._gap_start_statistic,
-                                                  params.nis_probability, was_on)
-                self._edge_value = None
-                if self._gap_start_on != was_on:  # the scale table reads _gap_end_scale
-                    self._forget_derived(nis=False)
+        if position is None and kind not in USED_OUTCOMES:
+            return  # occluded: the run waits to see whether this is a real gap
         run.clear()
+
+    def _test_gap_start(self, run: deque[tuple[NDArray[np.float64], NDArray[np.float64]]]
+                        ) -> None:
+        """Test the last fixes before a real gap, ``run`` (y (3,) m, S (3, 3) m^2 each, oldest
+        first), for a common offset (:meth:`_gap_start`) and keep the result."""
+        shadow, params = self._shadow.params, self.params
+        signature = edge_innovation_signature(shadow.accelerometer_noise_density,
+                                              shadow.mocap_position_noise,
+                                              self._edge_frames_period, len(run))
+        found = edge_offset_evidence([y for y, _ in run], [S for _, S in run], signature)
+        if found is None:
+            return
+        statistic, offset, covariance = found
+        # against S times the NIS window's factor, as the gap ends are tested against the
+        # scaled predictions: innovations too large at every fix (mocap noisier than
+        # configured, a lever arm) are no edge (unscaled, T averaged 5-7 on clean data with a
+        # lever arm and the edge term was on for 47 % of the rows)
+        factor = max(1.0, self._nis_scale())
+        self._gap_start_statistic.append(statistic / factor)
+        self._gap_start_edge.append(max(0.0, (float(offset @ offset)
+                                              - factor * float(np.trace(covariance))) / 3.0))
+        was_on = self._gap_start_on
+        self._gap_start_on = failing_high(self._gap_start_statistic, params.nis_probability,
+                                          was_on)
+        self._edge_value = None
+        if self._gap_start_on != was_on:  # the scale table reads _gap_end_scale
+            self._forget_derived(nis=False)
 
     def _edge_frame_count(self) -> int:
         """:func:`edge_frames` at the fixes' period rounded as in :meth:`_edge_shape`, 0 before
@@ -1829,7 +1845,7 @@ class ConsistencyMonitor:
         return sum_mean(self._gap_end_nis)
 
     def _gap_end_scale(self) -> float:
-        """The real gaps' matching factor ``mean NIS / 3`` when their test fails high
+        """The real gaps' matching factor ``mean NIS / 3`` while either edge test fails high
         (:meth:`_gap_ends_mean_nis`), else 0 (no constraint)."""
         return self._gap_ends_mean_nis() / 3
 
@@ -2048,9 +2064,9 @@ class ConsistencyMonitor:
           its NIS (:meth:`_reacquisition_rival`: d = x_prior - z, S = P_prior + R); of those
           still in time, the largest: P' = P + d d^T + S.
 
-        * at and after the last fused fix, an offset on the fixes up to it, once the fixes
-          ending real gaps showed one (:meth:`edge_offset_variance`): P' = P + sigma^2 (a +
-          b h)^2 I.
+        * at and after the last fused fix, an offset on the fixes up to it, once either edge
+          test showed one (:meth:`edge_offset_variance`): P' = P + v I, v = min(sigma^2,
+          sigma_step^2) at the fix and ``max(that, sigma^2 (a + b h)^2)`` h s after it.
 
         The largest eigenvalue of P' is at least |d|^2, so the bound reaches past the rival.
         Unchanged when there is none."""
@@ -2089,11 +2105,12 @@ class ConsistencyMonitor:
         variance = self._edge_variance()
         if variance <= 0:
             return 0.0
+        at_fix = min(variance, step_offset_variance(
+            self._shadow.params.mocap_position_noise ** 2, self.params))
         horizon = t - self._last_fix[0]
         if horizon == 0.0:
-            return min(variance, step_offset_variance(
-                self._shadow.params.mocap_position_noise ** 2, self.params))
-        return variance * self._edge_shape(horizon)
+            return at_fix
+        return max(at_fix, variance * self._edge_shape(horizon))
 
     def has_rivals(self, t: float) -> bool:
         """True when :meth:`cover_rivals` widens a covariance at t (s): a fix was gated since

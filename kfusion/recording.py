@@ -99,6 +99,8 @@ PLAUSIBLE_ACCELEROMETER_MEDIAN = (4.0, 30.0)
 """m/s^2: the median specific-force magnitude of a worn IMU is near 9.81."""
 MAX_PLAUSIBLE_ANGULAR_RATE = 40.0
 """rad/s: a 99th-percentile gyroscope magnitude above this looks like deg/s."""
+
+
 class RecordingError(ValueError):
     """A recording file is malformed. ``str()`` is one line naming file, row, column or key.
 
@@ -562,21 +564,36 @@ def read_imu(path: str | Path) -> ImuSamples:
             column=IMU_COLUMNS[col],
         )
     samples = ImuSamples(t=values[:, 0], accelerometer=values[:, 1:4], gyroscope=values[:, 4:7])
-    check_imu_units(path.name, samples)  # first: a unit mistake gets its own advice
-    for first, kind, limit, unit in ((1, "accelerometer", MAX_ACCELEROMETER_VALUE, "m/s^2"),
-                                     (4, "gyroscope", MAX_GYROSCOPE_VALUE, "rad/s")):
-        beyond = np.abs(values[:, first:first + 3]) > limit
-        if beyond.any():
-            row, col = np.argwhere(beyond)[0]
-            raise RecordingError(
-                path.name,
-                f"{kind} value {float(values[row, first + col]):.6g} is beyond any body-worn "
-                f"sensor's range; expected |value| <= {limit:g} {unit}",
-                row=int(row) + 1, column=IMU_COLUMNS[first + col])
+    check_imu_units(path.name, samples)
     return samples
 
 
 def check_imu_units(file: str, samples: ImuSamples) -> None:
+    """RecordingError naming ``file`` when the samples look like the wrong units (g or mm/s^2
+    for m/s^2, deg/s for rad/s), then when an axis is beyond any body-worn sensor
+    (:func:`check_imu_values`; after the units, which get their own advice)."""
+    _check_imu_magnitudes(file, samples)
+    check_imu_values(file, samples)
+
+
+def check_imu_values(file: str, samples: ImuSamples) -> None:
+    """RecordingError naming ``file``, row and column of the first axis beyond
+    ``MAX_ACCELEROMETER_VALUE`` (m/s^2) or ``MAX_GYROSCOPE_VALUE`` (rad/s) of
+    :mod:`kfusion.conventions`: corrupt, not saturated (the Tracker rejects such a sample as
+    ``implausible_value``)."""
+    for first, values, kind, limit, unit in (
+            (1, samples.accelerometer, "accelerometer", MAX_ACCELEROMETER_VALUE, "m/s^2"),
+            (4, samples.gyroscope, "gyroscope", MAX_GYROSCOPE_VALUE, "rad/s")):
+        beyond = np.abs(np.asarray(values)) > limit
+        if beyond.any():
+            row, col = np.argwhere(beyond)[0]
+            raise RecordingError(
+                file, f"{kind} value {float(values[row, col]):.6g} is beyond any body-worn "
+                f"sensor's range; expected |value| <= {limit:g} {unit}",
+                row=int(row) + 1, column=IMU_COLUMNS[first + col])
+
+
+def _check_imu_magnitudes(file: str, samples: ImuSamples) -> None:
     if len(samples) == 0:
         raise RecordingError(file, "no samples")
     magnitude = float(np.median(vector_length(samples.accelerometer, axis=1)))

@@ -403,3 +403,22 @@ def test_fixes_noisier_than_configured_are_no_edge_offset():
     assert run.monitor is not None
     assert run.monitor.edge_offset_std_m == 0.0 and run.monitor.suspected_cause != EDGES
     assert run.monitor.gap_start_statistic < 4.5
+
+
+def test_single_dropped_frames_are_not_occlusions_for_the_gap_start_test():
+    """A dropped frame is no gap (under settle_after_s): the fixes before it are not the last
+    before an occlusion. Each filled the gap-start test's window (an adversarial review's
+    finding: one frame in ten dropped put 20 such 'occlusions' in it, diluting the real ones);
+    the test now waits until a gap is real, so without real gaps it never runs."""
+    from kfusion.recording import MocapFrames
+
+    simulation = simulate("random_reach", seed=0, imu="mpu9255", duration=20.0, occlusions=None)
+    mocap = simulation.recording.mocap
+    position = np.array(mocap.position)
+    quaternion = np.array(mocap.quaternion)
+    position[5::10] = np.nan
+    quaternion[5::10] = np.nan
+    recording = simulation.recording.with_mocap(
+        MocapFrames(t=mocap.t, position=position, quaternion=quaternion))
+    run = run_filter(recording)
+    assert run.monitor is not None and math.isnan(run.monitor.gap_start_statistic)

@@ -341,6 +341,12 @@ BROAD_ERRORS = [
      r"quaternion"),
     ("position mm", scaled("opt_pos", 1000.0), {},
      r"^trial\.mat, key 'opt_pos\[20, 1\]': position 999\.443 looks like mm; expected m"),
+    # a corrupt sample, as imu.csv refuses it (it was fused, as merely saturated)
+    ("gyro beyond any sensor", altered("imu_gyr", 7, 2, 1e308), {},
+     r"^trial\.mat, key 'imu_gyr\[7, 2\]': gyroscope value 1e\+308 is beyond any body-worn "
+     r"sensor's range; expected \|value\| <= 1000 rad/s$"),
+    ("acc beyond any sensor", altered("imu_acc", 3, 1, -2e4), {},
+     r"^trial\.mat, key 'imu_acc\[3, 1\]': accelerometer value -20000 is beyond"),
 ]
 
 

@@ -273,11 +273,12 @@ def test_a_fix_ending_a_gap_keeps_its_prediction_as_a_rival_by_hand():
 
     assert edge(t)[0, 0] > 0
     # at the fix, the offset whole, sigma^2 capped by the largest offset below the step rule
-    # (2.7 R); h s later sigma^2 (a + b h)^2
-    assert edge(t)[0, 0] == pytest.approx(
-        min(monitor._edge_variance(), step_offset_variance(r, monitor.params)))
+    # (2.7 R); h s later sigma^2 (a + b h)^2, never below the fix's
+    at_fix = min(monitor._edge_variance(), step_offset_variance(r, monitor.params))
+    assert edge(t)[0, 0] == pytest.approx(at_fix)
+    assert edge(t + 1e-4)[0, 0] == pytest.approx(at_fix)  # it fell 6x here (a review's finding)
     assert edge(t + life)[0, 0] == pytest.approx(
-        monitor._edge_variance() * monitor._edge_shape(life))
+        max(at_fix, monitor._edge_variance() * monitor._edge_shape(life)))
     np.testing.assert_allclose(monitor.cover_rivals(t, np.zeros(3), zeros),
                                expected + edge(t), rtol=1e-12)
     # for reacquisition_rival_s, its end included, then no more; not counted as a step

@@ -143,6 +143,7 @@ def _span(t: np.ndarray) -> float:
 
 
 def _median_step(t: np.ndarray) -> float:
+    """Median step of the times t (s, or the file's unit), 0 for fewer than 2."""
     return float(np.median(np.diff(t))) if len(t) > 1 else 0.0
 
 

@@ -217,7 +217,8 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
         outcome = UpdateOutcome(t, kinds[row], nis[row], y=run.y[row] if fused[row] else None,
                                 S=run.S[row] if fused[row] else None)
         main.row = row
-        monitor.mocap(t, fixes[row] if shown[row] else None, outcome,  # (it copies what it keeps)
+        # (it copies the positions it keeps; run.y and run.S rows it keeps are never written)
+        monitor.mocap(t, fixes[row] if shown[row] else None, outcome,
                       cast(KalmanFusion, main), prior)
         recorder.record_monitor(row, outcome, initialised[row])
     recorder.widen_fixes()

@@ -159,7 +159,10 @@ def read_broad(path: str | Path, *, mocap_step: int = 1) -> Recording:
     try:
         check_imu_units(file, imu)
     except RecordingError as error:
-        key = "imu_acc" if error.column == "ax" else "imu_gyr"
+        key = "imu_acc" if error.column in ("ax", "ay", "az") else "imu_gyr"
+        if error.row is not None:  # one sample's axis (check_imu_values): name it as _first_bad
+            axis = "xyz".index(str(error.column)[-1])
+            key = f"{key}[{error.row - 1}, {axis}]"
         raise RecordingError(file, error.reason, key=key) from None
 
     kept = subsample_indices(count, int(mocap_step))
