@@ -1772,8 +1772,8 @@ class ConsistencyMonitor:
         kind, params = outcome.kind, self.params
         run, last = self._run_innovations, self._last_fix
         frames = self._edge_frame_count()
-        if run and last is not None and reacquired_after_gap(t - last[0],
-                                                             params.settle_after_s):
+        ends_gap = last is not None and reacquired_after_gap(t - last[0], params.settle_after_s)
+        if run and ends_gap:
             # the run has ended in a real gap (a dropout shorter than settle_after_s is none)
             if len(run) == run.maxlen:
                 self._test_gap_start(run)
@@ -1783,8 +1783,7 @@ class ConsistencyMonitor:
             return
         y, S = outcome.y, outcome.S
         if kind == ACCEPTED and position is not None and y is not None and S is not None \
-                and last is not None \
-                and not reacquired_after_gap(t - last[0], params.settle_after_s):
+                and last is not None and not ends_gap:
             # kept without a copy: every producer builds y and S new per update (the compiled
             # kernel's outputs, KalmanFusion's locals) or passes rows of the batch run's
             # arrays, which nothing writes after the kernel

@@ -826,8 +826,7 @@ def parse_info(data: object, file: str = META_FILE, *, require_mount: bool = Tru
         raise RecordingError(file, f"gravity length is {vector_length(gravity):.4g} m/s^2; "
                              f"expected about 9.81 (between {low} and {high})", key="gravity")
     lever_arm = _vector(file, data, "lever_arm", 3, required=False)
-    if lever_arm is not None and vector_length(lever_arm) > MAX_LEVER_ARM_M:
-        length = vector_length(lever_arm)
+    if lever_arm is not None and (length := vector_length(lever_arm)) > MAX_LEVER_ARM_M:
         advice = "which looks like mm" if length <= 1000 * MAX_LEVER_ARM_M else \
             "implausible even in mm"
         raise RecordingError(file, f"lever arm length is {length:.4g}, {advice}; expected m "

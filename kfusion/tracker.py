@@ -1135,9 +1135,9 @@ class Tracker:
         lever = None if lever_arm is None else _vector("Tracker", "lever_arm", lever_arm, 3, "m")
         if lever is not None and not np.isfinite(lever).all():
             raise ValueError("Tracker: lever_arm: expected 3 finite numbers (m), got non-finite")
-        if lever is not None and vector_length(lever) > MAX_LEVER_ARM_M:
+        if lever is not None and (length := vector_length(lever)) > MAX_LEVER_ARM_M:
             raise ValueError(f"Tracker: lever_arm: expected at most {MAX_LEVER_ARM_M:g} m long "
-                             f"(m, not mm), got {vector_length(lever):.4g}")
+                             f"(m, not mm), got {length:.4g}")
         if engine is None:  # marker-level fusion has no compiled path yet
             engine = "filterpy" if markers else "compiled"
         if engine not in ("compiled", "filterpy"):  # kfusion.kalman.engines.ENGINES
@@ -1319,14 +1319,15 @@ class Tracker:
         if not (isfinite(t) and isfinite(a0) and isfinite(a1) and isfinite(a2)
                 and isfinite(g0) and isfinite(g1) and isfinite(g2)):
             return self._reject(stream, NON_FINITE)
-        if max(abs(a0), abs(a1), abs(a2)) > MAX_ACCELEROMETER_VALUE \
+        largest_force = max(abs(a0), abs(a1), abs(a2))  # m/s^2, also the saturation test
+        if largest_force > MAX_ACCELEROMETER_VALUE \
                 or max(abs(g0), abs(g1), abs(g2)) > MAX_GYROSCOPE_VALUE:
             return self._reject(stream, IMPLAUSIBLE_VALUE)
         if self._implausible(t, IMU_STREAM):
             return self._reject(stream, IMPLAUSIBLE_TIME)
         if t <= stream.last_t:
             return self._order_rejection(stream, t, (accelerometer, gyroscope))
-        saturated = max(abs(a0), abs(a1), abs(a2)) >= self._saturation_level
+        saturated = largest_force >= self._saturation_level
         # fused at the time the sample describes (kfusion.kalman.events: stamp - latency)
         time, _ = event_key(t, IMU_STREAM, self._estimator.imu_latency_s)
         if self._mocap.waiting is not None:
