@@ -80,6 +80,7 @@ from kfusion.conventions import (
     QUATERNION_NORM_TOLERANCE,
     integrate_gyroscope,
     matrix_from_wxyz,
+    median_interval,
     quaternion_multiply,
 )
 from kfusion.guards import real_number, refuse_masked, short_repr
@@ -591,7 +592,7 @@ class BaselineTracker:
         R_global_imu = matrix_from_wxyz(quaternion) @ self._R_body_imu
         # velocity first (eq. 5, or the dead-reckoned "last velocity"), with the offset so far
         if len(times) >= nv + 1 and visible[-(nv + 1):].all():
-            step = float(np.median(np.diff(times[-(nv + 1):])))
+            step = median_interval(times[-(nv + 1):])
             self.velocity = fit_velocity(positions[-(nv + 1):], step)
             velocity = self.velocity
         elif self._state is not None:
@@ -620,7 +621,7 @@ class BaselineTracker:
 
     def _design(self, times: NDArray[np.float64]) -> float:
         """Ta for this buffer; (re)compute the pseudo-inverse when the period changes."""
-        step = float(np.median(np.diff(times)))
+        step = median_interval(times)
         if self._period is None or abs(step - self._period) > PERIOD_TOLERANCE * self._period:
             self._period = step
             design = design_matrix(self.params.buffer_size, step)

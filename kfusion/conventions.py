@@ -102,6 +102,15 @@ def vector_length(values: ArrayLike, axis: int | None = None) -> Any:
         return np.linalg.norm(values, axis=axis)
 
 
+def median_interval(t: ArrayLike, default: float = 0.0) -> float:
+    """Median step between successive times ``t`` (s, or the file's unit): a stream's nominal
+    period, robust to dropped samples and bursts; ``default`` for fewer than two times."""
+    times = np.asarray(t, dtype=float)
+    if len(times) < 2:
+        return default
+    return float(np.median(np.diff(times)))
+
+
 def imu_time_to_mocap(t_imu: ArrayLike, imu_time_offset: float = 0.0,
                       imu_clock_drift_ppm: float = 0.0) -> NDArray[np.float64]:
     """IMU timestamps (s, IMU clock) on the mocap clock (s), shape as given:

@@ -49,7 +49,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from kfusion.conventions import LOST, rotation_angle
+from kfusion.conventions import LOST, median_interval, rotation_angle
 from kfusion.recording import occlusion_runs
 from kfusion.sweep import ExperimentResult
 
@@ -158,7 +158,7 @@ def velocity_diagnostics(simulation: Simulation, gaps: np.ndarray,
         row = {"fix_acceleration": float(np.linalg.norm(truth.imu_acceleration[sample])),
                "velocity_error_m_s": np.nan}
         if fix >= nv and mocap.visible[fix - nv:fix + 1].all():
-            period = float(np.median(np.diff(mocap.t[fix - nv:fix + 1])))
+            period = median_interval(mocap.t[fix - nv:fix + 1])
             velocity = fit_velocity(mocap.position[fix - nv:fix + 1], period)
             row["velocity_error_m_s"] = float(np.linalg.norm(velocity
                                                              - truth.imu_velocity[sample]))

@@ -41,7 +41,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from kfusion.conventions import LOST  # noqa: E402
+from kfusion.conventions import LOST, median_interval  # noqa: E402
 from kfusion.guards import atomic_write  # noqa: E402
 from kfusion.recording import Recording, occlusion_runs  # noqa: E402
 from kfusion.safety import BindingMargins  # noqa: E402
@@ -722,7 +722,7 @@ def binding_margin_figure(margins: BindingMargins, *, path: str | Path | None = 
             style = method_style(name, index)
             ax.plot(t, np.where(binds, margins.margin, np.nan), color=style["color"],
                     ls=style["ls"], lw=1.5, label=f"{name} binds")
-    step = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    step = median_interval(t)
     for start, stop in occlusion_runs(margins.known):  # each unknown row to the next row
         ax.axvspan(t[start], t[stop] if stop < len(t) else t[-1] + step, color="tab:red",
                    alpha=0.2, lw=0, zorder=0, label="unknown (a body lost)")

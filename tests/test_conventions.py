@@ -12,6 +12,7 @@ from kfusion.conventions import (
     integrate_gyroscope,
     matrix_from_quaternion,
     matrix_from_wxyz,
+    median_interval,
     quaternion_about_axis,
     quaternion_exp,
     quaternion_exp_rows,
@@ -153,3 +154,12 @@ def test_rotation_angle_and_canonical_sign():
     np.testing.assert_array_equal(canonical_wxyz(flipped), first)
     assert rotation_angle([1.0, 0.0, 0.0, 0.0], [np.cos(0.5), np.sin(0.5), 0.0, 0.0]) \
         == pytest.approx(1.0, abs=1e-15)
+
+
+def test_median_interval_is_the_nominal_period_despite_dropouts_and_bursts():
+    # 10 ms frames with one dropped frame (20 ms) and a burst (two 1 ms steps): median 10 ms
+    t = [0.0, 0.01, 0.02, 0.04, 0.05, 0.051, 0.052, 0.06, 0.07]
+    assert median_interval(t) == pytest.approx(0.01, abs=1e-15)
+    assert median_interval([0.0, 0.5, 1.5]) == pytest.approx(0.75)  # even count: the mean of two
+    assert median_interval([3.0]) == 0.0
+    assert median_interval([], default=0.01) == 0.01

@@ -36,6 +36,7 @@ from kfusion.calibration.specific_force import (
     fit_accelerometer_offset,
     lever_arm_matrix,
     mount_columns,
+    residual_correlation,
     symmetric_scale_design,
 )
 from kfusion.cli import main
@@ -602,3 +603,10 @@ def test_a_recording_without_occlusions_is_fitted_inside_the_imu_span():
     mocap_t = recording.mocap.t
     assert len(y) == pytest.approx(len(full) * ((mocap_t >= 0.5) & (mocap_t <= 5.5)).sum()
                                    / len(mocap_t), rel=0.1)
+
+
+def test_residual_correlation_counts_frames_per_independent_residual():
+    # low-passed at 4 Hz, a 100 Hz stream's residuals are independent every 100 / 8 frames;
+    # a stream slower than twice the cut-off has every frame independent
+    assert residual_correlation(np.arange(0.0, 1.0, 0.01), 4.0) == pytest.approx(12.5)
+    assert residual_correlation(np.arange(0.0, 10.0, 0.2), 4.0) == 1.0

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import signal
 
-from kfusion.conventions import rotation_from_wxyz
+from kfusion.conventions import median_interval, rotation_from_wxyz
 from kfusion.recording import ImuSamples, Recording
 
 Array = NDArray[np.float64]
@@ -70,7 +70,7 @@ class IntervalRates:
 def frames_per_interval(mocap_t: ArrayLike, interval_s: float = RATE_INTERVAL_S) -> int:
     """Frames ``s`` between the two ends of a rate interval: ``max(1, round(interval / dt))``
     with dt the median frame step."""
-    step = float(np.median(np.diff(np.asarray(mocap_t, dtype=float))))
+    step = median_interval(mocap_t)
     return max(1, int(round(interval_s / step)))
 
 
@@ -87,7 +87,7 @@ def mocap_interval_rates(t: ArrayLike, quaternion: ArrayLike, frames: int, *,
     quaternion = np.asarray(quaternion, dtype=float)
     visible = np.isfinite(quaternion).all(axis=1)
     stride = frames if stride is None else stride
-    step = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    step = median_interval(t, default=1.0)
     first = np.arange(0, len(t) - frames, stride)
     last = first + frames
     # every frame of the interval visible: count occluded frames with a running sum

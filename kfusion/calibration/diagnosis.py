@@ -61,10 +61,11 @@ from kfusion.calibration.specific_force import (
     UNKNOWNS,
     fit_accelerometer_offset,
     fit_specific_force,
+    residual_correlation,
     solve_specific_force,
     specific_force_system,
 )
-from kfusion.conventions import matrix_from_wxyz, rotation_from_wxyz
+from kfusion.conventions import matrix_from_wxyz, median_interval, rotation_from_wxyz
 from kfusion.recording import (
     ImuSamples,
     MocapFrames,
@@ -142,10 +143,6 @@ def _span(t: np.ndarray) -> float:
     return float(t[-1] - t[0]) if len(t) > 1 else 0.0
 
 
-def _median_step(t: np.ndarray) -> float:
-    """Median step of the times t (s, or the file's unit), 0 for fewer than 2."""
-    return float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-
 
 def time_unit_problem(recording: Recording) -> str | None:
     """A message when one stream's time span is ~1000 times the other's and its median step,
@@ -154,11 +151,11 @@ def time_unit_problem(recording: Recording) -> str | None:
     imu, mocap = _span(recording.imu.t), _span(recording.mocap.t)
     low, high = UNITS_RATIO
     if mocap > 0 and low <= imu / mocap <= high \
-            and _median_step(recording.imu.t) >= MS_MEDIAN_STEP:
+            and median_interval(recording.imu.t) >= MS_MEDIAN_STEP:
         return (f"IMU time looks like ms: imu.csv spans {imu:.6g} against the mocap's "
                 f"{mocap:.6g} s: divide imu.csv's t by 1000")
     if imu > 0 and low <= mocap / imu <= high \
-            and _median_step(recording.mocap.t) >= MS_MEDIAN_STEP:
+            and median_interval(recording.mocap.t) >= MS_MEDIAN_STEP:
         return (f"mocap time looks like ms: mocap.csv spans {mocap:.6g} against the IMU's "
                 f"{imu:.6g} s: divide mocap.csv's t by 1000")
     return None
@@ -355,8 +352,8 @@ def fine_clock_problem(recording: Recording, start: float, notes: list[str]) -> 
         if abs(drift) > DRIFT_SIGMAS * drift_std:
             return (f"IMU clock drifts about {drift:+.0f} +- {drift_std:.0f} ppm against the "
                     f"mocap ({stated}; recording.yaml says 0): {CALIBRATE_FIX}")
-        rate = 1.0 / float(np.median(np.diff(recording.mocap.t)))
-        halves = (confirming_halves(y, design, drift, max(1.0, rate / (2.0 * CUTOFF_HZ)))
+        halves = (confirming_halves(y, design, drift,
+                                    residual_correlation(recording.mocap.t, CUTOFF_HZ))
                   if abs(drift) > DRIFT_SIGMAS * found.drift_std_ppm else None)
         if halves is not None:
             return (f"IMU clock drifts about {drift:+.0f} +- {found.drift_std_ppm:.0f} ppm "
@@ -478,7 +475,7 @@ def _diagnose(recording: Recording, imu_latency_s: float) -> Diagnosis:
     except ValueError as error:
         notes.append(f"gravity not checked: {error}")
         return Diagnosis(notes=notes, correlation=correlation)
-    seconds = force.samples * float(np.median(np.diff(recording.mocap.t)))
+    seconds = force.samples * median_interval(recording.mocap.t)
     if seconds < MIN_GRAVITY_SECONDS:
         notes.append(f"gravity not checked: {seconds:.1f} s of usable visible mocap (expected "
                      f"at least {MIN_GRAVITY_SECONDS:g} s)")

@@ -26,6 +26,7 @@ from scipy.spatial.transform import Rotation
 
 from kfusion.calibration.specific_force import (
     CUTOFF_HZ,
+    residual_correlation,
     robust_least_squares,
     specific_force_system,
     symmetric_scale_design,
@@ -156,8 +157,7 @@ def force_mount_information(recording: Recording, offset: float, drift_ppm: floa
     residual = b - A @ solution
     used = int(np.sum(np.any(A != 0.0, axis=0)))
     sigma2 = float(residual @ residual) / max(len(b) - used, 1)
-    rate = 1.0 / float(np.median(np.diff(recording.mocap.t)))
-    correlation = max(1.0, rate / (2.0 * cutoff_hz))
+    correlation = residual_correlation(recording.mocap.t, cutoff_hz)
     weight = 1.0 / (sigma2 * correlation)
     target = np.arange(columns - 3, columns)
     information, vector = marginal_information(A.T @ A * weight, A.T @ b * weight, target)

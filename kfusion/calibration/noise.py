@@ -20,6 +20,7 @@ from typing import Final
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from kfusion.conventions import median_interval
 from kfusion.recording import ImuSamples, occlusion_runs
 
 Array = NDArray[np.float64]
@@ -79,7 +80,7 @@ class NoiseEstimate:
 def estimate_noise(imu: ImuSamples) -> NoiseEstimate:
     """Noise densities (module docstring): from still stretches when there are any, else from
     third differences of the whole recording."""
-    dt = float(np.median(np.diff(imu.t)))
+    dt = median_interval(imu.t)
     spans = still_stretches(imu)
     if spans:
         # third differences inside each stretch: the slow sway of a limb held "still" is

@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import signal
 
 from kfusion.calibration.clock import mocap_to_imu_time
-from kfusion.conventions import matrix_from_wxyz
+from kfusion.conventions import matrix_from_wxyz, median_interval
 from kfusion.recording import Recording, occlusion_runs
 
 Array = NDArray[np.float64]
@@ -364,6 +364,15 @@ class AccelerometerClock:
     converged: bool
 
 
+def residual_correlation(mocap_t: ArrayLike, cutoff_hz: float = CUTOFF_HZ) -> float:
+    """Frames per independent residual of a fit on signals low-passed at ``cutoff_hz`` (Hz):
+    ``max(1, rate / (2 cutoff))``, rate the mocap's median frame rate (Hz; frame times
+    ``mocap_t`` s). The least-squares covariance is multiplied by it, since neighbouring
+    residuals of a low-passed signal are not independent."""
+    rate = 1.0 / median_interval(mocap_t)
+    return max(1.0, rate / (2.0 * cutoff_hz))
+
+
 def fit_accelerometer_offset(recording: Recording, offset: float, drift_ppm: float,
                              imu_to_body: ArrayLike, *, cutoff_hz: float = CUTOFF_HZ,
                              fit_drift: bool = False,
@@ -383,8 +392,7 @@ def fit_accelerometer_offset(recording: Recording, offset: float, drift_ppm: flo
     amounts (their on-chip filters differ: on BROAD the accelerometer is timed about 1 ms
     later than the gyroscope), so this is the offset a gap's position error depends on.
     ValueError as :func:`specific_force_system`."""
-    rate = 1.0 / float(np.median(np.diff(recording.mocap.t)))
-    correlation = max(1.0, rate / (2.0 * cutoff_hz))
+    correlation = residual_correlation(recording.mocap.t, cutoff_hz)
     middle = 0.5 * float(recording.imu.t[0] + recording.imu.t[-1])
     delta, middle_std, std, drift_std = np.inf, np.inf, np.inf, np.nan
     residual = np.full((1, 3), np.nan)
@@ -425,8 +433,7 @@ def fit_specific_force(recording: Recording, offset: float, drift_ppm: float,
     the orientation changes too little to separate it from gravity (:data:`MAX_BIAS_STD`)."""
     y, design = specific_force_system(recording, offset, drift_ppm, imu_to_body,
                                       cutoff_hz=cutoff_hz)
-    rate = 1.0 / float(np.median(np.diff(recording.mocap.t)))
-    correlation = max(1.0, rate / (2.0 * cutoff_hz))
+    correlation = residual_correlation(recording.mocap.t, cutoff_hz)
     x, covariance, residual = solve_specific_force(y, design, correlation=correlation)
     if not np.max(np.sqrt(np.diag(covariance)[6:9])) <= MAX_BIAS_STD:
         x, covariance, residual = solve_specific_force(y, design, fit_bias=False,

@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Any, Final
 import numpy as np
 from numpy.typing import NDArray
 
-from kfusion.conventions import BRIDGED, LOST, TRACKED
+from kfusion.conventions import BRIDGED, LOST, TRACKED, median_interval
 from kfusion.kalman.batch import (
     BODY,
     MARKERS,
@@ -320,7 +320,7 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     durations = durations[durations <= params.max_bridge_s]
     if len(durations) == 0:
         return None
-    frame = float(np.median(np.diff(mocap.t))) if len(mocap.t) > 1 else 0.01
+    frame = median_interval(mocap.t, default=0.01)
     low = max(float(durations.min()) - frame, frame)
     high = max(float(durations.max()) - frame, low)
     from kfusion.evaluate import cut_gaps  # pandas: kept out of kfusion.tracker's imports
