@@ -14,12 +14,16 @@ process with an empty JIT cache, then with the cache written).
 
 Run: ``python benchmarks/speed.py [--quick] [--monitor-only]``. ``--monitor-only`` times just
 the yardstick and the batch filter and smoother rows with and without the monitor (compiled
-engine; with ``--quick`` on the 20 s recording). Numbers are one run on a shared machine.
+engine; with ``--quick`` on the 20 s recording), and splits the monitored batch run into its
+kernels (the main filter, the shadow gaps, states recomputed from checkpoints) and the
+monitor's Python, with the ratio the kernels alone would reach. Numbers are one run on a
+shared machine.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import subprocess
 import sys
@@ -273,7 +277,55 @@ def monitor_rows(seconds: float) -> tuple[float, int, list[tuple[str, str, str]]
             rows.append((f"{label}, engine compiled, " + ("monitor on" if monitor
                                                            else "no monitor"),
                          f"{rate:,.0f} IMU samples/s", f"{rate / bare:.2f}x"))
+    total, parts = monitored_kernel_time(data)
+    kernels = sum(parts.values())
+    rows.append(("batch kalman, monitor on: its kernels' share (main filter, shadow gaps, "
+                 "states recomputed from checkpoints; the rest is the monitor's Python)",
+                 f"{total:.3f} s = " + " + ".join(f"{value:.3f}" for value in parts.values())
+                 + f" + {total - kernels:.3f} s",
+                 f"{samples / kernels / bare:.2f}x with the Python at zero"))
     return seconds, samples, rows
+
+
+def monitored_kernel_time(data: Recording, repeat: int = 3) -> tuple[float, dict[str, float]]:
+    """The fastest of ``repeat`` monitored compiled batch runs over ``data`` (s) and, in it, the
+    seconds spent in the main filter's kernel (``compiled.run_kernel``), in the shadow gaps'
+    kernel runs (``Checkpoints.run``) and in recomputing the main filter's state at a row from
+    its last checkpoint (``Checkpoints.state_before``): each wrapped with a timer for the
+    runs, then restored."""
+    from kfusion.kalman import compiled
+
+    spent = {"run_kernel": 0.0, "run": 0.0, "state_before": 0.0}
+    owners = {"run_kernel": compiled, "run": compiled.Checkpoints,
+              "state_before": compiled.Checkpoints}
+    originals = {name: getattr(owner, name) for name, owner in owners.items()}
+
+    def timer(name: str):  # type: ignore[no-untyped-def]
+        function = originals[name]
+
+        def timed_call(*args, **kwargs):  # type: ignore[no-untyped-def]
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                spent[name] += time.perf_counter() - start
+        return timed_call
+
+    best, parts = math.inf, dict(spent)
+    try:
+        for name, owner in owners.items():
+            setattr(owner, name, timer(name))
+        for _ in range(repeat):
+            spent.update(dict.fromkeys(spent, 0.0))
+            start = time.perf_counter()
+            run_filter(data, engine="compiled")
+            total = time.perf_counter() - start
+            if total < best:
+                best, parts = total, dict(spent)
+    finally:
+        for name, owner in owners.items():
+            setattr(owner, name, originals[name])
+    return best, parts
 
 
 def print_table(seconds: float, samples: int, rows: list[tuple[str, str, str]]) -> None:
