@@ -113,6 +113,7 @@ from kfusion.kalman.markers import (
     common_error_variance,
     consistent_markers,
     fit_angle_variance,
+    lone_marker_ambiguous,
     marker_arms,
     marker_gate,
     marker_nis,
@@ -553,7 +554,8 @@ class KalmanFusion:
         if not np.isfinite(body).all():
             raise ValueError("update_markers: body_positions: expected finite numbers (m)")
         visible = np.isfinite(seen).all(axis=1)
-        return self._update_markers_valid(t, seen[visible], body[visible], shared_frames)
+        return self._update_markers_valid(t, seen[visible], body[visible], shared_frames,
+                                          hidden=body[~visible])
 
     def _frame_time(self, t: float, where: str) -> float:
         """A mocap frame's time (:func:`frame_time` against the state's time)."""
@@ -893,10 +895,11 @@ class KalmanFusion:
         return UpdateOutcome(t, kind, nis, y=y, S=S)
 
     def _update_markers_valid(self, t: float, points: NDArray[np.float64],
-                              body: NDArray[np.float64], shared_frames: int | None = None
-                              ) -> UpdateOutcome:
+                              body: NDArray[np.float64], shared_frames: int | None = None,
+                              hidden: NDArray[np.float64] | None = None) -> UpdateOutcome:
         """update_markers() after validation: ``points`` (k, 3) the visible markers (finite),
-        ``body`` (k, 3) their body-frame positions."""
+        ``body`` (k, 3) their body-frame positions, ``hidden`` (h, 3) the cluster's other
+        markers' (the labels a lone marker could carry instead)."""
         self._advance(t)
         self._prior = None
         self._last_frame_fused = False  # until this frame's fix is fused (_mark_fix)
@@ -959,8 +962,9 @@ class KalmanFusion:
 
         R_global_body = matrix_from_quaternion(quaternion) @ self._R_imu_body
         H_all, offset_all = stacked_measurement(H, offset, R_global_body, body)
-        R_all = marker_noise(marker_arms(R_global_body, body, self._lever_in_use(self._kf.x)),
-                             marker_variance, angle_variance)
+        lever = self._lever_in_use(self._kf.x)
+        arms = marker_arms(R_global_body, body, lever)
+        R_all = marker_noise(arms, marker_variance, angle_variance)
         P = self._kf.P
         with np.errstate(over="ignore", invalid="ignore"):
             innovations = (points.ravel() - offset_all - H_all @ self._kf.x).reshape(-1, 3)
@@ -980,6 +984,16 @@ class KalmanFusion:
             # state's covariance, so an overconfident P cannot make it reject good markers,
             # while the escape let a marker 6-10 mm off be fused at 0.5 mm noise
             keep &= consistent_markers(innovations, R_all, self._gate, 0.0)
+        elif not prediction_valid or (keep[0] and hidden is not None and lone_marker_ambiguous(
+                innovations[0], point_covariance, arms[0],
+                marker_arms(R_global_body, hidden, lever), marker_variance, angle_variance,
+                self._gate)):
+            # a lone marker whose label nothing can check: no other marker, and no prediction
+            # (after max_bridge_s) or one that another label of the cluster fits as well. A
+            # labeller guesses a lone marker's label as it reappears; with a neighbour's the
+            # track re-acquired 70 mm off, tracked with a 4-8 mm bound (up to 18x). The track
+            # waits for two markers that agree, or a prediction that tells the labels apart.
+            keep[:] = False
         rejected = int(len(points) - keep.sum())
         self._counters["markers_gated"] += rejected
         if not keep.any():

@@ -207,6 +207,37 @@ def consistent_markers(innovations: ArrayLike, R: ArrayLike, threshold: float,
     return none
 
 
+def lone_marker_ambiguous(innovation: ArrayLike, point_covariance: ArrayLike, arm: ArrayLike,
+                          other_arms: ArrayLike, marker_variance: float, angle_variance: float,
+                          threshold: float) -> bool:
+    """True when the prediction cannot tell a lone visible marker's label from another
+    marker's of its cluster: the marker, if it were marker j, would pass the gate too.
+
+    A lone marker carries no geometry to check its label against (:func:`consistent_markers`
+    needs two), and a labeller guesses a lone marker's label when it reappears. Its innovation
+    under its own label is ``y = z - H x - c - a``, ``a`` its arm (:func:`marker_arms`); were
+    it marker j (arm ``a_j``)::
+
+        y_j = z - H x - c - a_j = y + a - a_j
+        S_j = H P H^T + sigma_m^2 I + sigma_theta^2 [a_j x] [a_j x]^T
+
+    and the label is ambiguous when ``y_j^T S_j^-1 y_j <= threshold`` for some j. With a tight
+    prediction (a few mm against markers 3-7 cm apart) no other label fits; after a gap, when
+    the prediction has grown looser than the cluster, any label may.
+
+    Shapes: innovation (3,) m, point_covariance ``H P H^T`` (3, 3) m^2, arm (3,) m, other_arms
+    (k, 3) m (the cluster's other markers, visible or not); marker_variance m^2,
+    angle_variance rad^2 (:func:`marker_noise`)."""
+    y = np.asarray(innovation, dtype=float)
+    own = np.asarray(arm, dtype=float)
+    covariance = np.asarray(point_covariance, dtype=float)
+    for other in np.asarray(other_arms, dtype=float).reshape(-1, 3):
+        S = covariance + marker_noise(other[None], marker_variance, angle_variance)
+        if marker_nis(y + own - other, S) <= threshold:
+            return True
+    return False
+
+
 def marker_nis(y: ArrayLike, S: ArrayLike) -> float:
     """``y^T S^-1 y`` for one marker's innovation y (3,) m and covariance S (3, 3) m^2; inf when
     it overflows or S is singular."""
