@@ -72,13 +72,17 @@ def expected_pose(t: np.ndarray, t_first_full: float) -> tuple[np.ndarray, np.nd
 
 def write_c3d(path: Path, positions_m: np.ndarray, *, labels=LABELS, units: str = "mm",
               scale: float = 1000.0, first_frame: int = FIRST_FRAME, rate: float = RATE,
-              flagged=None, zeroed=None, y_screen: str | None = None) -> Path:
+              flagged=None, zeroed=None, y_screen: str | None = None,
+              measured_residual: float = 0.0, interpolated=None) -> Path:
     """Write a C3D file with ezc3d: positions (k, n, 3) in m, written in ``units`` (times
-    ``scale``); ``flagged`` points get residual -1 and zeros, ``zeroed`` points (0, 0, 0)."""
+    ``scale``); ``flagged`` points get residual -1 and zeros, ``zeroed`` points (0, 0, 0); the
+    others residual ``measured_residual``, except ``interpolated`` points: 0 (not measured)."""
     count, n = positions_m.shape[:2]
     points = np.ones((4, n, count))
     points[:3] = np.transpose(positions_m * scale, (2, 1, 0))
-    residuals = np.zeros((1, n, count))
+    residuals = np.full((1, n, count), measured_residual)
+    for frame, markers in (interpolated or {}).items():
+        residuals[0, markers, frame] = 0.0
     for frame, markers in (flagged or {}).items():
         for marker in markers:
             points[:3, marker, frame] = 0.0
@@ -213,6 +217,29 @@ def test_reader_honours_units_first_frame_residuals_and_zeros(tmp_path):
     np.testing.assert_allclose(markers.position, truth, atol=1e-6, rtol=0)
 
 
+def test_reader_reads_unmeasured_points_as_occluded_where_the_file_gives_residuals(tmp_path):
+    """Residual 0 marks a point not derived from camera rays (interpolated, filtered or
+    simulated: the C3D standard's glossary); measured points have a positive one."""
+    filled = {100: [0], 101: [0], 102: [0], 150: [1, 3]}
+    # residuals are stored in whole multiples of |POINT:SCALE| (1 here): 2 mm
+    path = cluster_file(tmp_path, measured_residual=2.0, interpolated=filled)
+    take = read_c3d_markers(path, list(LABELS))
+    assert take.residuals_given and take.interpolated == 5
+    assert take.residual_flagged == 18 and take.zero_filled == 8  # unchanged
+    for frame, markers in filled.items():
+        assert np.isnan(take.markers.position[frame, markers]).all()
+        others = [marker for marker in range(4) if marker not in markers]
+        assert np.isfinite(take.markers.position[frame, others]).all()
+    kept = read_c3d_markers(path, list(LABELS), keep_unmeasured=True)
+    assert kept.residuals_given and kept.interpolated == 0
+    assert np.isfinite(kept.markers.position[100, 0]).all()
+    # a file whose residuals are all 0 or -1 (no exporter residuals: simulated data) keeps them
+    plain = read_c3d_markers(cluster_file(tmp_path, "plain.c3d", interpolated=filled),
+                             list(LABELS))
+    assert not plain.residuals_given and plain.interpolated == 0
+    assert np.isfinite(plain.markers.position[100, 0]).all()
+
+
 def test_reader_converts_metres_and_centimetres_and_reads_the_up_axis(tmp_path):
     truth = true_markers(frame_times(5))
     for units, scale in (("m", 1.0), ("cm", 100.0)):
@@ -310,6 +337,27 @@ def test_convert_c3d_poses_match_the_hand_derived_truth(tmp_path, capsys):
     assert list(metadata["markers"]) == ["A", "B", "C", "D"]
     body = np.array([metadata["markers"][name] for name in LABELS])
     np.testing.assert_allclose(body, BODY @ rotation_y(angle(t[1:2])[0]).T, atol=2e-6, rtol=0)
+
+
+def test_convert_c3d_reads_gap_filled_points_as_occluded_and_says_how_many(tmp_path, capsys):
+    """An export after "fill gaps": the filled points carry residual 0, the measured ones a
+    positive residual. They are left occluded (kfusion bridges gaps itself), counted in the
+    summary, and kept with --keep-unmeasured."""
+    filled = {f: [2] for f in range(100, 110)}
+    path = cluster_file(tmp_path, measured_residual=2.0, interpolated=filled)
+    imu = write_imu(tmp_path / "imu_in.csv")
+    status, stdout, err = convert(capsys, str(path), "--imu", str(imu), "--markers", "A,B,C,D",
+                                  "--out", str(tmp_path / "rec"))
+    assert (status, err) == (0, ""), err
+    assert "8 zero-filled, 10 not measured (residual 0: interpolated or filtered by the " \
+        "exporter) read as occluded (--keep-unmeasured keeps them)" in stdout
+    markers = read_markers(tmp_path / "rec" / "markers.csv")
+    assert np.isnan(markers.position[100:110, 2]).all()
+    status, stdout, err = convert(capsys, str(path), "--imu", str(imu), "--markers", "A,B,C,D",
+                                  "--out", str(tmp_path / "kept"), "--keep-unmeasured")
+    assert (status, err) == (0, ""), err
+    assert "residual-0 samples kept (--keep-unmeasured)" in stdout
+    assert np.isfinite(read_markers(tmp_path / "kept" / "markers.csv").position[100:110, 2]).all()
 
 
 def test_convert_c3d_with_three_markers_and_a_mount_passes_the_reader(tmp_path, capsys):

@@ -157,6 +157,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     c3d.add_argument("--max-residual", type=finite_float, default=DEFAULT_MAX_RESIDUAL * 1e3,
                      metavar="MM", help="a frame whose worst marker misses the fitted cluster by "
                      "more is left occluded (a swapped marker), mm (default %(default)g)")
+    c3d.add_argument("--keep-unmeasured", action="store_true",
+                     help="keep points whose residual is 0 in a file that gives measured ones a "
+                     "positive residual (the C3D mark of an interpolated or filtered point; "
+                     "default: read as occluded, since kfusion fills gaps itself). For an "
+                     "exporter whose residuals round to 0 at its POINT:SCALE")
     c3d.add_argument("--name", help="recording name (default: the file's stem; for several "
                      "bodies NAME-BODY)")
     _add_output(c3d)
@@ -234,7 +239,7 @@ def _convert_c3d(args: argparse.Namespace) -> tuple[Recording, list[str]]:
     if not args.max_residual > 0:
         raise ValueError(f"{COMMAND_LINE}: --max-residual {args.max_residual!r}; expected a "
                          "positive number of mm")
-    take = read_c3d_markers(path, names, body=args.body)
+    take = read_c3d_markers(path, names, body=args.body, keep_unmeasured=args.keep_unmeasured)
     markers = take.markers
     if len(markers.names) < MIN_MARKERS:
         raise ValueError(f"{COMMAND_LINE}: {len(markers.names)} marker(s) "
@@ -260,7 +265,12 @@ def _convert_c3d(args: argparse.Namespace) -> tuple[Recording, list[str]]:
     notes = [
         f"c3d: {len(markers)} frames at {take.rate:g} Hz from frame {take.first_frame} "
         f"(t = {markers.t[0]:.6g} s), POINT:UNITS {take.units}; {take.residual_flagged} marker "
-        f"samples flagged invalid, {take.zero_filled} zero-filled",
+        f"samples flagged invalid, {take.zero_filled} zero-filled, "
+        + (f"{take.interpolated} not measured (residual 0: interpolated or filtered by the "
+           "exporter) read as occluded (--keep-unmeasured keeps them)" if take.interpolated
+           else "none not measured" if take.residuals_given and not args.keep_unmeasured
+           else "residual-0 samples kept (--keep-unmeasured)" if take.residuals_given
+           else "no residuals in the file (measured and gap-filled samples look alike)"),
         cluster.rigidity_line(),
         f"solvable frames: {solved} of {len(markers)} ({100 * solved / len(markers):.1f} %) with "
         f">= {MIN_MARKERS} markers seen; {int(poses.rejected.sum())} refused (fit residual > "
