@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -236,6 +236,18 @@ def marker_name_problem(name: object) -> str | None:
     return None
 
 
+def marker_offset_problem(position: ArrayLike) -> str | None:
+    """Why a marker's body-frame position (3,) cannot be one in m (None when it can): farther
+    than :data:`MAX_PLAUSIBLE_MARKER_OFFSET` from the rigid-body origin, which looks like mm.
+    (Given in mm, a 5 cm cluster reads as 50 m: no frame fits it, and the track stayed lost
+    without a word.)"""
+    length = float(vector_length(np.asarray(position, dtype=float)))
+    if length > MAX_PLAUSIBLE_MARKER_OFFSET:
+        return (f"marker is {length:.4g} from the rigid-body origin, which looks like mm; "
+                f"expected m (at most {MAX_PLAUSIBLE_MARKER_OFFSET:g})")
+    return None
+
+
 @dataclass(frozen=True)
 class MarkerFrames:
     """Positions of individual markers (``markers.csv``), read-only arrays.
@@ -378,6 +390,9 @@ class RecordingInfo:
                 if frozen.shape != (3,):
                     raise ValueError(f"RecordingInfo.markers[{name!r}]: expected shape (3,), got "
                                      f"{frozen.shape}")
+                problem = marker_offset_problem(frozen)
+                if problem is not None:
+                    raise ValueError(f"RecordingInfo.markers[{name!r}]: {problem}")
                 markers[name] = frozen
             object.__setattr__(self, "markers", MappingProxyType(markers))
 
@@ -786,10 +801,9 @@ def _marker_positions(file: str, data: dict) -> dict[str, NDArray[np.float64]] |
         if position is None:
             raise RecordingError(file, "missing; expected a list of 3 numbers (m, body frame)",
                                  key=f"markers.{name}")
-        if vector_length(position) > MAX_PLAUSIBLE_MARKER_OFFSET:
-            raise RecordingError(file, f"marker is {vector_length(position):.4g} from the "
-                                 "rigid-body origin, which looks like mm; expected m (at most "
-                                 f"{MAX_PLAUSIBLE_MARKER_OFFSET:g})", key=f"markers.{name}")
+        problem = marker_offset_problem(position)
+        if problem is not None:
+            raise RecordingError(file, problem, key=f"markers.{name}")
         positions[name] = position
     return positions
 

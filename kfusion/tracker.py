@@ -170,7 +170,13 @@ from kfusion.online_clock import (
     timing_error_covariance,
 )
 from kfusion.profiles import ImuProfile, imu_profile
-from kfusion.recording import MAX_PLAUSIBLE_POSITION, RecordingInfo, check_clock, parse_info
+from kfusion.recording import (
+    MAX_PLAUSIBLE_POSITION,
+    RecordingInfo,
+    check_clock,
+    marker_offset_problem,
+    parse_info,
+)
 from kfusion.streamhealth import (
     DEFAULT_MAX_TIME_JUMP_S,
     FIX_TIMEOUT_S,
@@ -2171,6 +2177,10 @@ def _marker_body(markers: Mapping[str, ArrayLike] | None
     if not np.isfinite(body).all():
         bad = names[int(np.flatnonzero(~np.isfinite(body).all(axis=1))[0])]
         raise ValueError(f"Tracker: markers[{bad!r}]: expected 3 finite numbers (m)")
+    for name, position in zip(names, body, strict=True):
+        problem = marker_offset_problem(position)
+        if problem is not None:
+            raise ValueError(f"Tracker: markers[{name!r}]: {problem}")
     body.flags.writeable = False
     return names, body
 

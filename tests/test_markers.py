@@ -270,3 +270,21 @@ def test_self_calibration_keeps_the_body_frame_markers():
                                                                         markers=body))
     calibration = calibrate_recording(recording)
     assert info_to_dict(calibration.info)["markers"] == body
+
+
+def test_a_marker_layout_in_mm_is_refused_wherever_it_is_given():
+    """recording.yaml refused it already; given to RecordingInfo or the Tracker directly a 5 cm
+    cluster in mm (50 m) fitted no frame, and the Tracker stayed lost without a word."""
+    from kfusion.recording import RecordingInfo
+    from kfusion.tracker import Tracker
+
+    layout = {"A": [50.0, 0.0, 0.0], "B": [0.0, 40.0, 0.0], "C": [0.0, 0.0, 30.0]}
+    with pytest.raises(ValueError, match=r"^RecordingInfo\.markers\['A'\]: marker is 50 from "
+                       r"the rigid-body origin, which looks like mm; expected m"):
+        RecordingInfo(imu_to_body=(1.0, 0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.81),
+                      markers=layout)
+    with pytest.raises(ValueError, match=r"^Tracker: markers\['A'\]: marker is 50 from the "
+                       r"rigid-body origin, which looks like mm"):
+        Tracker((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, -9.81), markers=layout)
+    metres = {name: [value / 1000 for value in position] for name, position in layout.items()}
+    Tracker((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, -9.81), markers=metres)  # the same in m is fine
