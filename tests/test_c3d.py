@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from kfusion.cli import main
-from kfusion.readers.c3d import c3d_frame_times, read_c3d_markers
+from kfusion.readers.c3d import c3d_frame_times, read_c3d_markers, residuals_quantised
 from kfusion.recording import RecordingError, read_markers, read_mocap, read_recording
 from kfusion.rigid_body import estimate_cluster, fit_pose, mean_shape, solve_poses
 
@@ -73,14 +73,17 @@ def expected_pose(t: np.ndarray, t_first_full: float) -> tuple[np.ndarray, np.nd
 def write_c3d(path: Path, positions_m: np.ndarray, *, labels=LABELS, units: str = "mm",
               scale: float = 1000.0, first_frame: int = FIRST_FRAME, rate: float = RATE,
               flagged=None, zeroed=None, y_screen: str | None = None,
-              measured_residual: float = 0.0, interpolated=None) -> Path:
+              measured_residual=0.0, interpolated=None) -> Path:
     """Write a C3D file with ezc3d: positions (k, n, 3) in m, written in ``units`` (times
     ``scale``); ``flagged`` points get residual -1 and zeros, ``zeroed`` points (0, 0, 0); the
-    others residual ``measured_residual``, except ``interpolated`` points: 0 (not measured)."""
+    others residual ``measured_residual`` (a float, or (frames, markers)), except
+    ``interpolated`` points: 0 (not measured). ezc3d stores residuals in whole multiples of
+    ``|POINT:SCALE|`` (1 here)."""
     count, n = positions_m.shape[:2]
     points = np.ones((4, n, count))
     points[:3] = np.transpose(positions_m * scale, (2, 1, 0))
-    residuals = np.full((1, n, count), measured_residual)
+    residuals = np.broadcast_to(np.asarray(measured_residual, dtype=float),
+                                (count, n)).T[None].copy()
     for frame, markers in (interpolated or {}).items():
         residuals[0, markers, frame] = 0.0
     for frame, markers in (flagged or {}).items():
@@ -238,6 +241,33 @@ def test_reader_reads_unmeasured_points_as_occluded_where_the_file_gives_residua
                              list(LABELS))
     assert not plain.residuals_given and plain.interpolated == 0
     assert np.isfinite(plain.markers.position[100, 0]).all()
+
+
+def test_reader_keeps_residual_zero_points_where_the_residuals_are_quantised(tmp_path):
+    """With POINT:SCALE 1 mm, measured residuals of 0.3-1.3 mm are stored as 0 or 1: a 0 may be
+    a measured point rounded down, so nothing is read as not measured (the rule alone dropped
+    87 % of a simulated take's measured points)."""
+    residual = np.random.default_rng(3).uniform(0.3, 1.3, (FRAMES, 4))
+    path = cluster_file(tmp_path, measured_residual=residual, interpolated={100: [0]})
+    take = read_c3d_markers(path, list(LABELS))
+    assert take.residuals_given and take.residuals_quantised and take.interpolated == 0
+    assert np.isfinite(take.markers.position[100, 0]).all()
+    # one step per positive residual is the cut-off: 10 % of them at 1 step is quantised
+    assert residuals_quantised(np.array([1.0] + [3.0] * 9), 1.0)
+    assert not residuals_quantised(np.array([1.0] + [3.0] * 10), 1.0)
+    assert not residuals_quantised(np.array([2.0, 3.0]), 1.0)
+    assert not residuals_quantised(np.zeros(0), 1.0)
+
+
+def test_convert_names_the_unmeasured_samples_when_too_few_frames_are_left(tmp_path, capsys):
+    filled = {frame: [1] for frame in range(FRAMES)}  # marker B never measured
+    path = cluster_file(tmp_path, measured_residual=2.0, interpolated=filled)
+    imu = write_imu(tmp_path / "imu_in.csv")
+    status, _, err = convert(capsys, str(path), "--imu", str(imu), "--markers", "A,B,C,D",
+                             "--out", str(tmp_path / "rec"))
+    assert status == 2
+    assert re.search(r"take\.c3d: no frame where all 4 markers .* \(\d+ samples with residual 0 "
+                     r"were read as not measured: --keep-unmeasured keeps them\)", err), err
 
 
 def test_reader_converts_metres_and_centimetres_and_reads_the_up_axis(tmp_path):

@@ -249,7 +249,9 @@ def _convert_c3d(args: argparse.Namespace) -> tuple[Recording, list[str]]:
         cluster = estimate_cluster(markers.names, markers.position,
                                    max_residual=args.max_residual * 1e-3)
     except ValueError as error:
-        raise ValueError(f"{path.name}: {error}") from None
+        hint = (f" ({take.interpolated} samples with residual 0 were read as not measured: "
+                "--keep-unmeasured keeps them)") if take.interpolated else ""
+        raise ValueError(f"{path.name}: {error}{hint}") from None
     poses = solve_poses(markers.position, cluster.body_positions,
                         max_residual=args.max_residual * 1e-3)
     mocap = MocapFrames(t=markers.t, position=poses.position, quaternion=poses.quaternion)
@@ -268,6 +270,8 @@ def _convert_c3d(args: argparse.Namespace) -> tuple[Recording, list[str]]:
         f"samples flagged invalid, {take.zero_filled} zero-filled, "
         + (f"{take.interpolated} not measured (residual 0: interpolated or filtered by the "
            "exporter) read as occluded (--keep-unmeasured keeps them)" if take.interpolated
+           else "residuals quantised at POINT:SCALE (a 0 may be a measured point rounded "
+           "down): residual-0 samples kept" if take.residuals_quantised
            else "none not measured" if take.residuals_given and not args.keep_unmeasured
            else "residual-0 samples kept (--keep-unmeasured)" if take.residuals_given
            else "no residuals in the file (measured and gap-filled samples look alike)"),
