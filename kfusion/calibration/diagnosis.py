@@ -143,7 +143,6 @@ def _span(t: np.ndarray) -> float:
     return float(t[-1] - t[0]) if len(t) > 1 else 0.0
 
 
-
 def time_unit_problem(recording: Recording) -> str | None:
     """A message when one stream's time span is ~1000 times the other's and its median step,
     read as seconds, is at least :data:`MS_MEDIAN_STEP` (a stream stopping early, e.g. an

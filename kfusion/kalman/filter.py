@@ -519,7 +519,9 @@ class KalmanFusion:
         Each marker is gated alone (chi-square(3) at ``gate_probability`` and beyond
         ``gate_min_innovation``, while the prediction is valid), and must agree among
         themselves (the unique largest pairwise-consistent set of 2 or more,
-        :func:`kfusion.kalman.markers.consistent_markers`); the markers that pass are
+        :func:`kfusion.kalman.markers.consistent_markers`); a lone visible marker only while
+        the prediction is valid and tells its label from every other marker's of the cluster
+        (:func:`kfusion.kalman.markers.lone_marker_ambiguous`). The markers that pass are
         fused together with their correlated noise (:func:`kfusion.kalman.markers.
         marker_noise`). The first fix needs 3 markers (the orientation and position are
         initialised from their pose).

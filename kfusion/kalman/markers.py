@@ -39,7 +39,10 @@ run too, which share the error; offline, every frame of a run of K frames takes
 ``(K sigma_c^2 + sigma_w^2) / |S| >= sigma_c^2 + sigma_w^2 / |S|``: covered.
 
 Gate: each marker is tested alone against its own 3x3 innovation covariance
-(:func:`marker_nis`), so a swapped marker is rejected while the others are fused.
+(:func:`marker_nis`), so a swapped marker is rejected while the others are fused; two or more
+must also agree among themselves (:func:`consistent_markers`), and a lone marker, which nothing
+else checks, only counts when the prediction tells its label from the cluster's others
+(:func:`lone_marker_ambiguous`).
 """
 
 from __future__ import annotations

@@ -298,8 +298,8 @@ def write_c3d_markers(path: str | Path, markers: MarkerFrames, *, units: str = "
     as (0, 0, 0) with residual -1 (the C3D flag of an invalid point), the others with residual 0
     (the standard's value for points not derived from camera rays: kfusion writes simulated or
     converted data; :func:`read_c3d_markers` keeps them, since no residual is positive).
-    Coordinates are stored as
-    32-bit floats in ``units`` (0.1 um resolution for mm at a few metres).
+    Coordinates are stored as 32-bit floats in ``units`` (0.1 um resolution for mm at a few
+    metres).
 
     Args:
         path: the ``.c3d`` file to write.
