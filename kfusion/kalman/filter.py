@@ -113,7 +113,7 @@ from kfusion.kalman.markers import (
     common_error_variance,
     consistent_markers,
     fit_angle_variance,
-    lone_marker_ambiguous,
+    labels_ambiguous,
     marker_arms,
     marker_gate,
     marker_nis,
@@ -519,9 +519,10 @@ class KalmanFusion:
         Each marker is gated alone (chi-square(3) at ``gate_probability`` and beyond
         ``gate_min_innovation``, while the prediction is valid), and must agree among
         themselves (the unique largest pairwise-consistent set of 2 or more,
-        :func:`kfusion.kalman.markers.consistent_markers`); a lone visible marker only while
-        the prediction is valid and tells its label from every other marker's of the cluster
-        (:func:`kfusion.kalman.markers.lone_marker_ambiguous`). The markers that pass are
+        :func:`kfusion.kalman.markers.consistent_markers`); one or two visible markers only
+        while the prediction tells their labels from any other labelling by the cluster's
+        markers (:func:`kfusion.kalman.markers.labels_ambiguous`; a lone one never after
+        ``max_bridge_s``). The markers that pass are
         fused together with their correlated noise (:func:`kfusion.kalman.markers.
         marker_noise`). The first fix needs 3 markers (the orientation and position are
         initialised from their pose).
@@ -986,15 +987,18 @@ class KalmanFusion:
             # state's covariance, so an overconfident P cannot make it reject good markers,
             # while the escape let a marker 6-10 mm off be fused at 0.5 mm noise
             keep &= consistent_markers(innovations, R_all, self._gate, 0.0)
-        elif not prediction_valid or (keep[0] and hidden is not None and lone_marker_ambiguous(
-                innovations[0], point_covariance, arms[0],
-                marker_arms(R_global_body, hidden, lever), marker_variance, angle_variance,
-                self._gate)):
-            # a lone marker whose label nothing can check: no other marker, and no prediction
-            # (after max_bridge_s) or one that another label of the cluster fits as well. A
-            # labeller guesses a lone marker's label as it reappears; with a neighbour's the
-            # track re-acquired 70 mm off, tracked with a 4-8 mm bound (up to 18x). The track
-            # waits for two markers that agree, or a prediction that tells the labels apart.
+        if len(points) == 1 and not prediction_valid:
+            keep[:] = False  # a lone marker after max_bridge_s: nothing can check its label
+        if 0 < keep.sum() <= 2 and len(points) <= 2 and hidden is not None and labels_ambiguous(
+                innovations[keep], point_covariance, arms[keep],
+                np.vstack([marker_arms(R_global_body, hidden, lever), arms[~keep]]),
+                marker_variance, angle_variance, self._gate):
+            # one or two markers whose labels nothing can check: another labelling by the
+            # cluster's markers fits the prediction (and each other) as well. A labeller guesses
+            # the labels of markers reappearing alone or in a pair; with a neighbour's label a
+            # lone marker re-acquired the track 70 mm off, tracked with a 4-8 mm bound (up to
+            # 18x), and a rectangle's pair under the other pair's labels 4 cm off (34.5x). The
+            # track waits for a pose (3 markers) or a prediction that tells the labels apart.
             keep[:] = False
         rejected = int(len(points) - keep.sum())
         self._counters["markers_gated"] += rejected
