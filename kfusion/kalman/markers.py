@@ -48,7 +48,7 @@ labelling by the cluster's markers (:func:`labels_ambiguous`).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from itertools import combinations, permutations
+from itertools import combinations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -210,6 +210,12 @@ def consistent_markers(innovations: ArrayLike, R: ArrayLike, threshold: float,
     return none
 
 
+MAX_LABELLINGS = 200
+"""Relabellings of a pair :func:`labels_ambiguous` tries one by one; beyond, the labels count as
+ambiguous (each passes its gate under that many label pairs: a prediction looser than the
+cluster). 132 for a 12-marker cluster, a few ms."""
+
+
 def labels_ambiguous(innovations: ArrayLike, point_covariance: ArrayLike, arms: ArrayLike,
                      other_arms: ArrayLike, marker_variance: float, angle_variance: float,
                      threshold: float) -> bool:
@@ -242,20 +248,24 @@ def labels_ambiguous(innovations: ArrayLike, point_covariance: ArrayLike, arms: 
         return False
     labels = np.vstack([own, np.asarray(other_arms, dtype=float).reshape(-1, 3)])
     covariance = np.asarray(point_covariance, dtype=float)
-    for chosen in permutations(range(len(labels)), len(y)):
-        if chosen == tuple(range(len(y))):
-            continue  # the labels as given
-        relabelled = y + own - labels[list(chosen)]
-        if any(marker_nis(relabelled[i], covariance + marker_noise(
-                labels[label][None], marker_variance, angle_variance)) > threshold
-               for i, label in enumerate(chosen)):
-            continue
-        if len(y) == 2:
-            noise = marker_noise(labels[list(chosen)], marker_variance, angle_variance)
-            C = noise[:3, :3] + noise[3:, 3:] - noise[:3, 3:] - noise[3:, :3]
-            if marker_nis(relabelled[0] - relabelled[1], C) > threshold:
-                continue
-        return True
+    # which label each marker could carry: its own gate under that label
+    possible = [[label for label in range(len(labels))
+                 if marker_nis(y[i] + own[i] - labels[label], covariance + marker_noise(
+                     labels[label][None], marker_variance, angle_variance)) <= threshold]
+                for i in range(len(y))]
+    if len(y) == 1:
+        return any(label != 0 for label in possible[0])
+    pairs = [(first, second) for first in possible[0] for second in possible[1]
+             if first != second and (first, second) != (0, 1)]
+    if len(pairs) > MAX_LABELLINGS:
+        return True  # too many to tell apart (a prediction far looser than a large cluster)
+    for first, second in pairs:
+        chosen = [first, second]
+        relabelled = y + own - labels[chosen]
+        noise = marker_noise(labels[chosen], marker_variance, angle_variance)
+        C = noise[:3, :3] + noise[3:, 3:] - noise[:3, 3:] - noise[3:, :3]
+        if marker_nis(relabelled[0] - relabelled[1], C) <= threshold:
+            return True
     return False
 
 
