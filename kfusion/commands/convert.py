@@ -39,7 +39,12 @@ from kfusion.conventions import OPTITRACK_GRAVITY, Z_UP_GRAVITY
 from kfusion.guards import finite_float
 from kfusion.profiles import imu_profile
 from kfusion.readers.broad import read_broad
-from kfusion.readers.c3d import labelled_bodies, read_c3d_labels, read_c3d_markers
+from kfusion.readers.c3d import (
+    C3dMarkers,
+    labelled_bodies,
+    read_c3d_labels,
+    read_c3d_markers,
+)
 from kfusion.readers.markers import parse_marker_names
 from kfusion.readers.motive import read_motive_csv, read_motive_markers
 from kfusion.recording import (
@@ -230,6 +235,20 @@ def _convert_motive(args: argparse.Namespace) -> tuple[Recording, list[str]]:
     return _with_imu(args, take, mocap, args.gravity, markers, positions), notes
 
 
+def _unmeasured_note(take: C3dMarkers, keep_unmeasured: bool) -> str:
+    """What the reader did with the samples of residual 0 (not measured), for the summary."""
+    if take.interpolated:
+        return (f"{take.interpolated} not measured (residual 0: interpolated or filtered by the "
+                "exporter) read as occluded (--keep-unmeasured keeps them)")
+    if take.residuals_quantised:
+        return ("residuals quantised at POINT:SCALE (a 0 may be a measured point rounded "
+                "down): residual-0 samples kept")
+    if not take.residuals_given:
+        return "no residuals in the file (measured and gap-filled samples look alike)"
+    return "residual-0 samples kept (--keep-unmeasured)" if keep_unmeasured \
+        else "none not measured"
+
+
 def _convert_c3d(args: argparse.Namespace) -> tuple[Recording, list[str]]:
     path = Path(args.c3d)
     if args.markers is None and args.body is None:
@@ -268,13 +287,7 @@ def _convert_c3d(args: argparse.Namespace) -> tuple[Recording, list[str]]:
         f"c3d: {len(markers)} frames at {take.rate:g} Hz from frame {take.first_frame} "
         f"(t = {markers.t[0]:.6g} s), POINT:UNITS {take.units}; {take.residual_flagged} marker "
         f"samples flagged invalid, {take.zero_filled} zero-filled, "
-        + (f"{take.interpolated} not measured (residual 0: interpolated or filtered by the "
-           "exporter) read as occluded (--keep-unmeasured keeps them)" if take.interpolated
-           else "residuals quantised at POINT:SCALE (a 0 may be a measured point rounded "
-           "down): residual-0 samples kept" if take.residuals_quantised
-           else "none not measured" if take.residuals_given and not args.keep_unmeasured
-           else "residual-0 samples kept (--keep-unmeasured)" if take.residuals_given
-           else "no residuals in the file (measured and gap-filled samples look alike)"),
+        f"{_unmeasured_note(take, args.keep_unmeasured)}",
         cluster.rigidity_line(),
         f"solvable frames: {solved} of {len(markers)} ({100 * solved / len(markers):.1f} %) with "
         f">= {MIN_MARKERS} markers seen; {int(poses.rejected.sum())} refused (fit residual > "

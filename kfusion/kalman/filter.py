@@ -559,7 +559,7 @@ class KalmanFusion:
             raise ValueError("update_markers: body_positions: expected finite numbers (m)")
         visible = np.isfinite(seen).all(axis=1)
         return self._update_markers_valid(t, seen[visible], body[visible], shared_frames,
-                                          hidden=body[~visible])
+                                          body[~visible])
 
     def _frame_time(self, t: float, where: str) -> float:
         """A mocap frame's time (:func:`frame_time` against the state's time)."""
@@ -899,8 +899,8 @@ class KalmanFusion:
         return UpdateOutcome(t, kind, nis, y=y, S=S)
 
     def _update_markers_valid(self, t: float, points: NDArray[np.float64],
-                              body: NDArray[np.float64], shared_frames: int | None = None,
-                              hidden: NDArray[np.float64] | None = None) -> UpdateOutcome:
+                              body: NDArray[np.float64], shared_frames: int | None,
+                              hidden: NDArray[np.float64]) -> UpdateOutcome:
         """update_markers() after validation: ``points`` (k, 3) the visible markers (finite),
         ``body`` (k, 3) their body-frame positions, ``hidden`` (h, 3) the cluster's other
         markers' (the labels a lone marker could carry instead)."""
@@ -990,8 +990,7 @@ class KalmanFusion:
             keep &= consistent_markers(innovations, R_all, self._gate, 0.0)
         if len(points) == 1 and not prediction_valid:
             keep[:] = False  # a lone marker after max_bridge_s: nothing can check its label
-        if 0 < keep.sum() <= 2 and since >= self.params.reacquire_after_s \
-                and hidden is not None and labels_ambiguous(
+        if 0 < keep.sum() <= 2 and since >= self.params.reacquire_after_s and labels_ambiguous(
                     innovations[keep], point_covariance, arms[keep],
                     np.vstack([marker_arms(R_global_body, hidden, lever), arms[~keep]]),
                     marker_variance, angle_variance, self._gate):
