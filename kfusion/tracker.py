@@ -868,7 +868,7 @@ class _KalmanEstimator:
             if fix is None:
                 return None
             position, covariance = fix
-            covariance = self.monitor.cover_rivals(t, position, covariance)
+            covariance = self._with_layout(self.monitor.cover_rivals(t, position, covariance))
             return _Reading(position, step.velocity, 0.5 * (covariance + covariance.T),
                             np.sqrt(np.diag(covariance)))
         if step.time_since_fix > 0.0:  # in a gap: the monitor's scale, never below the peak
@@ -884,8 +884,15 @@ class _KalmanEstimator:
                 covariance = suspected_clock_fix_covariance(covariance,
                                                             self._mocap_noise_variance)
             covariance = covariance + self.monitor.cover_rivals(t, step.position, _ZERO_3X3)
+        covariance = self._with_layout(covariance)
         std = np.sqrt(np.diag(covariance))
         return _Reading(step.position, step.velocity, 0.5 * (covariance + covariance.T), std)
+
+    def _with_layout(self, covariance: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``covariance`` (3, 3) m^2 plus the marker layout's common error, last, as the batch
+        filter adds it (:attr:`kfusion.kalman.filter.KalmanFusion.layout_variance`)."""
+        variance = getattr(self._fusion, "layout_variance", 0.0)
+        return covariance + variance * np.eye(3) if variance > 0.0 else covariance
 
     def _gap_covariance(self, t: float, step: Any, frame_horizon: float,
                         suspected_clock: tuple[float, float] | None

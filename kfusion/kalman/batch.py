@@ -470,6 +470,9 @@ class _RowRecorder:
         self.dead_reckoned = np.zeros(rows, dtype=bool)
         # (m, 3) m^2: variance the monitor's rival hypotheses add per axis (cover_rivals)
         self.rival_variance = np.zeros((rows, 3))
+        # (m,) m^2 per axis: the marker layout's common error (KalmanFusion.layout_variance;
+        # 0 without marker frames)
+        self.layout_variance = np.zeros(rows)
         # (m,) m^2: the part of it at a fused fix from the edge-offset term
         # (ConsistencyMonitor.edge_offset_variance at h = 0): the filter's online cover for
         # fixes that may turn out to end before an occlusion; the smoother leaves it out
@@ -516,6 +519,7 @@ class _RowRecorder:
             H, offset = fusion.output_map()
             self.output_matrix[row] = H
             self.output_offset[row] = offset
+            self.layout_variance[row] = getattr(fusion, "layout_variance", 0.0)
         if self.monitor is not None:
             self.record_monitor(row, outcome, initialised)
 
@@ -557,6 +561,7 @@ class _RowRecorder:
         recorder.allowed = np.ones(rows, dtype=bool)
         recorder.tested = np.ones(rows, dtype=bool)
         recorder.rival_variance = np.zeros((rows, 3))
+        recorder.layout_variance = np.zeros(rows)
         recorder.fix_edge_variance = np.zeros(rows)
         recorder.fix_position = np.full((rows, 3), np.nan)
         recorder.fix_variance = np.full((rows, 3), np.nan)
@@ -705,6 +710,8 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
     if watcher is not None:
         status, position, variance, scale = monitored_output(
             status, position, variance, recorder, since, watcher.params.horizon_edges_s)
+    # the marker layout's common error, last: the Tracker adds it to its reading's covariance
+    variance = variance + recorder.layout_variance[:, None]
     std = np.sqrt(variance)
     result = TrackResult(t=np.array(recording.mocap.t), position=position, std=std,
                          status=status, time_since_fix=since, method="kalman")

@@ -109,6 +109,7 @@ from kfusion.conventions import (  # the update outcomes: kfusion.kalman.filter'
 from kfusion.guards import refuse_masked
 from kfusion.kalman import model
 from kfusion.kalman.events import imu_event_time
+from kfusion.kalman.marker_layout import LayoutResiduals, corrected_markers, origin_variance
 from kfusion.kalman.markers import (
     common_error_variance,
     consistent_markers,
@@ -261,6 +262,7 @@ class KalmanSnapshot:
     imu_interval: float | None = None
     last_frame_fused: bool = False
     frames_on_gyroscope: int = 0
+    layout: LayoutResiduals | None = None
 
 
 def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
@@ -402,6 +404,9 @@ class KalmanFusion:
         # marker frames fused with the gyroscope's orientation since the last orientation fix
         # (:meth:`update_markers`: their orientation errors are one and the same)
         self._frames_on_gyroscope = 0
+        # the marker layout's residuals so far (kfusion.kalman.marker_layout; None before a
+        # marker frame)
+        self._layout: LayoutResiduals | None = None
         self._counters = dict.fromkeys(COUNTER_NAMES, 0)
         # smoother support (see kfusion.kalman.smoother): product of the transitions since the
         # smoother last reset it, and the prior of the last fused fix
@@ -558,8 +563,37 @@ class KalmanFusion:
         if not np.isfinite(body).all():
             raise ValueError("update_markers: body_positions: expected finite numbers (m)")
         visible = np.isfinite(seen).all(axis=1)
-        return self._update_markers_valid(t, seen[visible], body[visible], shared_frames,
-                                          body[~visible])
+        if self._layout is None or not self._layout.matches(body):
+            self._layout = LayoutResiduals.start(body)
+        layout = self._layout
+        placed = body + np.where(self._layout_corrected()[:, None], layout.mean, 0.0)
+        outcome = self._update_markers_valid(t, seen[visible], placed[visible], shared_frames,
+                                             placed[~visible])
+        if visible.all() and outcome.accepted and outcome.markers_used == len(body) \
+                and outcome.marker_origin is not None and self._last_orientation_fix == t:
+            # every marker fused, their pose taken as the orientation fix: the layout's
+            # residuals (kfusion.kalman.marker_layout), always against the declared layout
+            self._layout = layout.with_frame(seen)
+        return outcome
+
+    def _layout_corrected(self) -> NDArray[np.bool_]:
+        """(n,) the markers placed at their layout plus their mean residual
+        (:func:`kfusion.kalman.marker_layout.corrected_markers`)."""
+        layout = self._layout
+        assert layout is not None
+        return corrected_markers(layout.mean, layout.frames,
+                                 self.params.marker_position_noise ** 2)
+
+    @property
+    def layout_variance(self) -> float:
+        """Per-axis variance (m^2) of the rigid-body point's error that the marker layout
+        leaves, common to every frame (:func:`kfusion.kalman.marker_layout.origin_variance`):
+        added to the bound, never fused. 0 before a frame with every marker fused, and without
+        marker frames."""
+        layout = self._layout
+        if layout is None or layout.frames == 0:
+            return 0.0
+        return origin_variance(layout.mean, layout.body, self._layout_corrected())
 
     def _frame_time(self, t: float, where: str) -> float:
         """A mocap frame's time (:func:`frame_time` against the state's time)."""
@@ -635,6 +669,7 @@ class KalmanFusion:
             imu_interval=self._imu_interval,
             last_frame_fused=self._last_frame_fused,
             frames_on_gyroscope=self._frames_on_gyroscope,
+            layout=self._layout,
         )
 
     def restore(self, snapshot: KalmanSnapshot) -> None:
@@ -666,6 +701,7 @@ class KalmanFusion:
         self._imu_interval = snapshot.imu_interval
         self._last_frame_fused = snapshot.last_frame_fused
         self._frames_on_gyroscope = snapshot.frames_on_gyroscope
+        self._layout = snapshot.layout
 
     # ------------------------------------------------------------------ internals
 

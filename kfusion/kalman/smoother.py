@@ -676,6 +676,9 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         status, position, variance = fix_only_rows(status, position, variance,
                                                    np.zeros(m, dtype=bool), fix_position,
                                                    fix_variance)
+    # the marker layout's common error (kfusion.kalman.marker_layout): the same in every frame,
+    # so no smoothing averages it down; the forward filter's at each row
+    variance = variance + recorder.layout_variance[:, None]
     std = np.sqrt(variance)
     return SmootherRun(
         result=TrackResult(t=t, position=position, std=std, status=status,
