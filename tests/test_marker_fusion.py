@@ -328,6 +328,39 @@ def test_push_markers_equals_kfusion_track_with_markers_bit_for_bit(tmp_path, ca
     assert late.health.markers_used == in_order.health.markers_used
 
 
+def test_kfusion_stream_fuses_markers_as_track_does(tmp_path, capsys):
+    """``kfusion stream`` on a folder with markers pushes each row's markers (as ``kfusion
+    track`` fuses them by default): its estimates equal the batch filter's marker-level rows,
+    and with ``--measurement body`` the rigid body's, which are bridged where the body is
+    not solvable."""
+    from kfusion.commands.stream import stream_recording
+
+    simulation = simulate("random_reach", seed=2, duration=6.0, markers=MarkerSpec(),
+                          occlusions=OCCLUSIONS)
+    folder = write_simulation(simulation, tmp_path / "recording")
+    recording = read_recording(folder)
+    params_used = resolve_parameters(recording, None, {})
+    batch = run_filter(recording, measurement="markers").result
+    tracker = Tracker.from_recording_info(recording.info, params=params_used)
+    rows = list(stream_recording(recording, tracker, measurement="markers"))
+    assert [row for row, _ in rows] == list(range(len(recording.mocap)))
+    np.testing.assert_array_equal([estimate.position for _, estimate in rows], batch.position)
+    np.testing.assert_array_equal([estimate.status for _, estimate in rows], batch.status)
+    assert main(["stream", str(folder), "--every", "1", "--health"]) == 0
+    markers_out = capsys.readouterr().out
+    assert main(["stream", str(folder), "--every", "1", "--measurement", "body"]) == 0
+    body_out = capsys.readouterr().out
+    partial_rows = (recording.markers.visible.sum(axis=1) < 3) & \
+        recording.markers.visible.any(axis=1)
+    tracked = [line for line in markers_out.splitlines() if "status=tracked" in line]
+    assert "markers_used:" in markers_out
+    assert len(tracked) == int(np.sum(batch.status == "tracked"))
+    assert body_out.count("status=tracked") < len(tracked) - int(partial_rows.sum()) // 2
+    assert main(["stream", str(folder), "--method", "baseline", "--measurement",
+                 "markers"]) == 2
+    assert "--measurement markers: method 'baseline'" in capsys.readouterr().err
+
+
 def test_a_marker_frame_stamped_ahead_is_held_and_rejected_by_the_next(partial):
     """push_markers holds a frame stamped 0.15 s ahead of the cadence and of the IMU like
     push_mocap (kfusion.tracker.Tracker._admit_frame): the next frame, stamped before it,

@@ -15,6 +15,10 @@ import argparse
 import math
 from collections.abc import Iterator
 
+import numpy as np
+from numpy.typing import NDArray
+
+from kfusion.commands.track import measurement_mode
 from kfusion.conventions import LOST, imu_time_to_mocap
 from kfusion.guards import finite_float
 from kfusion.kalman.events import IMU_STREAM, merge_events
@@ -26,17 +30,21 @@ HELP = "Stream a recording through the online Tracker and print statuses and bou
 ORDER = 45
 
 
-def stream_recording(recording: Recording, tracker: Tracker | None = None
-                     ) -> Iterator[tuple[int, Estimate]]:
+def stream_recording(recording: Recording, tracker: Tracker | None = None, *,
+                     measurement: str = "body") -> Iterator[tuple[int, Estimate]]:
     """Feed ``recording`` to ``tracker`` in the fusion order of :mod:`kfusion.kalman.events`
     (an IMU sample at its stamp on the mocap clock minus the latency, the IMU sample first at
     equal times); yield ``(mocap row, estimate)`` right after each mocap row.
 
     ``tracker`` None builds one from the recording's metadata (Kalman, default parameters).
+    ``measurement``: ``body`` pushes ``mocap.csv``'s rigid body (:meth:`Tracker.push_mocap`),
+    ``markers`` the row's markers from ``markers.csv`` (:meth:`Tracker.push_markers`; a
+    tracker with the recording's ``markers``, as ``kfusion track --measurement markers``).
     """
     if tracker is None:
         tracker = Tracker.from_recording_info(recording.info)
     imu, mocap = recording.imu, recording.mocap
+    frames = marker_frames(recording) if measurement == "markers" else None
     imu_t = imu.t.tolist()
     accelerometer, gyroscope = imu.accelerometer, imu.gyroscope
     mapped = imu_time_to_mocap(imu.t, *tracker.imu_clock).tolist()
@@ -44,10 +52,29 @@ def stream_recording(recording: Recording, tracker: Tracker | None = None
         if stream == IMU_STREAM:
             tracker.push_imu(imu_t[index], accelerometer[index], gyroscope[index])
             continue
-        visible = bool(mocap.visible[index])
-        tracker.push_mocap(t, mocap.position[index] if visible else None,
-                           mocap.quaternion[index] if visible else None)
+        if frames is not None:
+            tracker.push_markers(t, frames[index])
+        else:
+            visible = bool(mocap.visible[index])
+            tracker.push_mocap(t, mocap.position[index] if visible else None,
+                               mocap.quaternion[index] if visible else None)
         yield index, tracker.estimate(t)  # "now" is the frame's time on the recording's clock
+
+
+def marker_frames(recording: Recording) -> list[dict[str, NDArray[np.float64] | None]]:
+    """Per mocap row, ``{NAME: (3,) m or None}`` of ``markers.csv`` (None where hidden), as
+    :meth:`Tracker.push_markers` takes it. ValueError (naming the files) without
+    ``markers.csv`` and ``recording.yaml``'s ``markers``, or with marker rows at other times
+    than ``mocap.csv``'s (:func:`kfusion.kalman.batch.marker_inputs`)."""
+    from kfusion.kalman.batch import marker_inputs  # on use: filterpy
+
+    observed, _ = marker_inputs(recording)
+    assert recording.markers is not None  # marker_inputs checked it
+    names = recording.markers.names
+    visible = np.isfinite(observed).all(axis=2)
+    return [{name: (row[column] if seen[column] else None)
+             for column, name in enumerate(names)}
+            for row, seen in zip(observed, visible, strict=True)]
 
 
 def format_estimate(estimate: Estimate, confidence: float = 0.99) -> str:
@@ -67,7 +94,7 @@ def format_estimate(estimate: Estimate, confidence: float = 0.99) -> str:
 
 def stream_lines(recording: Recording, *, count: int | None = None, every: int = 10,
                  confidence: float = 0.99, method: str = "kalman",
-                 start: float | None = None) -> list[str]:
+                 start: float | None = None, measurement: str = "body") -> list[str]:
     """Lines of :func:`format_estimate` after every ``every``-th mocap row (at most ``count``).
 
     Args:
@@ -77,6 +104,7 @@ def stream_lines(recording: Recording, *, count: int | None = None, every: int =
         confidence: the bound's probability, in (0, 1).
         method: ``kalman`` or ``baseline``.
         start: s; print only rows at or after this time (earlier rows are still streamed).
+        measurement: ``body`` or ``markers`` (:func:`stream_recording`).
     """
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise ValueError(f"every: expected a positive integer, got {every!r}")
@@ -87,7 +115,7 @@ def stream_lines(recording: Recording, *, count: int | None = None, every: int =
     tracker = Tracker.from_recording_info(recording.info, method=method)
     lines: list[str] = []
     printed = 0
-    for _, estimate in stream_recording(recording, tracker):
+    for _, estimate in stream_recording(recording, tracker, measurement=measurement):
         if start is not None and estimate.t < start:
             continue
         if printed % every == 0:
@@ -120,6 +148,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print the tracker's health counters at the end")
     parser.add_argument("--zeros-occluded", action="store_true",
                         help="read a mocap position of exactly (0, 0, 0) as occluded")
+    parser.add_argument("--measurement", choices=("markers", "body"), default=None,
+                        help="fuse each visible marker of markers.csv (markers) or mocap.csv's "
+                        "rigid body (body); default: markers when the folder has markers.csv "
+                        "and recording.yaml's markers and the method is kalman, as kfusion "
+                        "track")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -135,9 +168,10 @@ def run(args: argparse.Namespace) -> int:
     if args.start is not None and args.start > last:
         raise ValueError(f"--start: expected a time up to the last mocap frame's, "
                          f"{last:.3f} s, got {args.start:g}")
+    measurement = measurement_mode(recording, args.method, args.measurement)
     tracker = Tracker.from_recording_info(recording.info, method=args.method)
     printed = shown = 0
-    for _, estimate in stream_recording(recording, tracker):
+    for _, estimate in stream_recording(recording, tracker, measurement=measurement):
         if args.start is not None and estimate.t < args.start:
             continue
         if shown % args.every == 0:
