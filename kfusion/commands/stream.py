@@ -71,10 +71,8 @@ def marker_frames(recording: Recording) -> list[dict[str, NDArray[np.float64] | 
     observed, _ = marker_inputs(recording)
     assert recording.markers is not None  # marker_inputs checked it
     names = recording.markers.names
-    visible = np.isfinite(observed).all(axis=2)
-    return [{name: (row[column] if seen[column] else None)
-             for column, name in enumerate(names)}
-            for row, seen in zip(observed, visible, strict=True)]
+    return [{name: (point if np.isfinite(point).all() else None)
+             for name, point in zip(names, row, strict=True)} for row in observed]
 
 
 def format_estimate(estimate: Estimate, confidence: float = 0.99) -> str:
