@@ -161,7 +161,9 @@ from kfusion.conventions import (
 from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, short_repr
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, event_key
 from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, OCCLUDED, REACQUIRED
+from kfusion.kalman.markers import marker_fix_noise
 from kfusion.kalman.model import VELOCITY
+from kfusion.kalman.parameters import KalmanParameters
 from kfusion.monitor import CLOCK, IMU_MOTION, MonitorReport, held_at_frame
 from kfusion.online_clock import (
     DEFAULT_WINDOW_S,
@@ -466,14 +468,14 @@ class TrackerSnapshot:
     _state: Any = field(repr=False, compare=False)
 
 
-SNAPSHOT_FORMAT: Final = 6
+SNAPSHOT_FORMAT: Final = 7
 """Version of the state a :class:`TrackerSnapshot` holds (part of its configuration): raised
 whenever the estimator's or the monitor's state changes shape, so that a snapshot pickled by
 another version of kfusion is refused by :meth:`Tracker.restore` with a ValueError rather than
 restored and failing later (2: the monitor's sorted horizon rows and per-fix caches; 3: the
 time of the first fused frame, from which fixes test the model; 4: the running gap's peak
 variance and last frames; 5: the implausible_value rejection counter; 6: the test of the
-fixes before each occlusion)."""
+fixes before each occlusion; 7: the marker layout's residuals, ``KalmanSnapshot.layout``)."""
 
 _NUMERICAL_ERRORS: Final = (ArithmeticError, ValueError, np.linalg.LinAlgError)
 """What the estimator's maths may raise on overflowing numbers (math.sin(inf), singular S)."""
@@ -1179,6 +1181,14 @@ class Tracker:
         self._gravity = gravity_vector
         self._lever_arm = lever
         self._marker_names, self._marker_body = _marker_body(markers)
+        if self._marker_body is not None and isinstance(self.params, KalmanParameters):
+            # a marker-level fix is the cluster's fitted origin: the monitor and a fix shown
+            # alone take its noise (kfusion.kalman.batch.marker_fix_parameters, the batch
+            # filter's)
+            noise = marker_fix_noise(self._marker_body, self.params.marker_position_noise ** 2,
+                                     self.params.mocap_position_noise)
+            if noise != self.params.mocap_position_noise:
+                self.params = dataclasses.replace(self.params, mocap_position_noise=noise)
         self._estimator = self._new_estimator()
         self.max_bridge_s = self._estimator.max_bridge_s
         if options.fix_timeout_s > self.max_bridge_s:

@@ -9,12 +9,14 @@ import numpy as np
 from kfusion.kalman import run_filter, run_smoother
 from kfusion.kalman.batch import make_fusion, process_recording, resolve_parameters
 from kfusion.kalman.marker_layout import (
+    LONG_FRAMES,
     MIN_FRAMES,
     SIGNIFICANCE,
     LayoutResiduals,
     corrected_markers,
     origin_variance,
     residuals,
+    single_marker_gain,
 )
 from kfusion.kalman.markers import fit_angle_variance
 from kfusion.simulate import MarkerSpec, OcclusionSpec, simulate
@@ -49,23 +51,79 @@ def test_one_marker_moved_outwards_by_hand():
     assert np.allclose(r[1:], -0.25 * delta, atol=1e-12)
 
 
+def layout_with(mean: np.ndarray, body: np.ndarray = SQUARE, frames: int = 1000
+                ) -> LayoutResiduals:
+    """A layout whose long and recent mean residuals are both ``mean`` (n, 3) m."""
+    return LayoutResiduals(body, mean.copy(), np.full(len(body), min(frames, LONG_FRAMES)),
+                           mean.copy(), frames)
+
+
 def test_the_common_error_by_hand():
     """For those residuals, ``sigma_delta^2 = sum |r_i|^2 / (3n - 6) = (3/4) delta^2 / 6``; the
     square's centroid is the origin, so the origin's per-axis variance is ``sigma_delta^2 / 4``;
-    an uncorrected marker adds ``|r_i|^2 / 3`` of the largest."""
+    uncorrected markers add ``|r_i|^2 / 3`` of the largest."""
     delta = 0.001
     mean = np.zeros((4, 3))
     mean[0, 0], mean[1:, 0] = 0.75 * delta, -0.25 * delta
-    everyone = np.ones(4, dtype=bool)
-    assert np.isclose(origin_variance(mean, SQUARE, everyone), 0.75 * delta ** 2 / 6 / 4)
-    assert np.isclose(origin_variance(mean, SQUARE, ~everyone),
+    tiny, huge = (1e-6) ** 2, 1.0  # marker variances: every mean significant, or none
+    assert corrected_markers(layout_with(mean), tiny).all()
+    assert not corrected_markers(layout_with(mean), huge).any()
+    # none significant: independent errors, and the largest uncorrected residual
+    assert np.isclose(origin_variance(layout_with(mean), huge),
                       0.75 * delta ** 2 / 6 / 4 + (0.75 * delta) ** 2 / 3)
+    # significant (one marker off, most likely): at least the single-marker gain's term,
+    # 1/4 sum |r_i|^2 / 3 for the square, which is the larger here
+    assert np.isclose(origin_variance(layout_with(mean), tiny), 0.25 * 0.75 * delta ** 2 / 3)
     # off the origin the fit's rotation error moves the origin too: |mbar|^2 sigma_theta^2
     offset = SQUARE + [0.0, 0.0, 0.05]
     layout_variance = 0.75 * delta ** 2 / 6
-    assert np.isclose(origin_variance(mean, offset, everyone),
-                      layout_variance / 4 + 0.05 ** 2 * fit_angle_variance(offset,
-                                                                           layout_variance))
+    independent = layout_variance / 4 + 0.05 ** 2 * fit_angle_variance(offset, layout_variance)
+    assert np.isclose(origin_variance(layout_with(mean, offset), huge),
+                      independent + (0.75 * delta) ** 2 / 3)
+    assert np.isclose(origin_variance(layout_with(mean, offset), tiny),
+                      max(independent, single_marker_gain(offset) * 0.75 * delta ** 2 / 3))
+
+
+def test_single_marker_gain_by_hand_and_by_sampling():
+    """One marker of the square moved out of its plane by delta: the best plane is
+    ``z = delta/4 + delta x / (2a)``, so every residual is ``delta/4`` in size and the origin
+    moves ``delta/4``: ``|o|^2 / sum |r|^2 = (1/16) / (4/16) = 1/4``, the largest any one
+    marker gives. Sampled single-marker errors never exceed the gain, and reach it; a
+    3-marker cluster hides a marker moved out of its plane (infinite gain)."""
+    from kfusion.rigid_body import fit_pose
+
+    assert np.isclose(single_marker_gain(SQUARE), 0.25)
+    assert single_marker_gain(SQUARE[:3]) == np.inf
+    rng = np.random.default_rng(3)
+    for body in (SQUARE, SQUARE + [0.0, 0.0, -0.15],
+                 np.array([[0.02, -0.02, 0.0], [-0.05, -0.01, -0.03], [-0.01, -0.08, 0.01],
+                           [-0.05, -0.05, -0.05]])):
+        gain, largest = single_marker_gain(body), 0.0
+        for _ in range(3000):
+            true = body.copy()
+            error = rng.standard_normal(3)
+            true[rng.integers(len(body))] += 1e-5 * error / np.linalg.norm(error)
+            rotation, origin = fit_pose(body, true)  # the layout fitted to the moved markers
+            r = (true - origin) @ rotation - body
+            largest = max(largest, float(origin @ origin / np.sum(r * r)))
+        assert largest <= gain * (1 + 1e-3)
+        assert largest >= 0.95 * gain
+
+
+def test_a_recent_residual_away_from_the_correction_is_covered():
+    """A corrected marker whose recent mean left its long one (knocked since): the recent
+    mean counts, and what the correction leaves of it is covered whole."""
+    tiny = (1e-6) ** 2
+    mean = np.zeros((4, 3))
+    mean[0, 0], mean[1:, 0] = 0.75e-3, -0.25e-3
+    layout = layout_with(mean)
+    recent = mean.copy()
+    recent[2] = [0.0, 0.6e-3, 0.0]
+    moved = LayoutResiduals(SQUARE, mean, layout.long_frames, recent, layout.frames)
+    squared = np.sum(recent * recent)  # the recent mean of marker 2, the long one elsewhere
+    assert np.isclose(origin_variance(moved, tiny),
+                      max(squared / 6 / 4, 0.25 * squared / 3)
+                      + np.sum((recent[2] - mean[2]) ** 2) / 3)
 
 
 def test_a_marker_is_corrected_only_when_its_mean_residual_is_significant():
@@ -74,20 +132,41 @@ def test_a_marker_is_corrected_only_when_its_mean_residual_is_significant():
     mean[2] = [0.2e-3, 0.0, 0.0]
     # N |r|^2 / sigma^2 = N 0.16: significant from N = 102 on
     frames = int(np.ceil(SIGNIFICANCE / 0.16))
-    assert not corrected_markers(mean, frames - 1, variance).any()
-    assert corrected_markers(mean, frames, variance).tolist() == [False, False, True, False]
-    assert not corrected_markers(10.0 * mean, MIN_FRAMES - 1, variance).any()
+    assert not corrected_markers(layout_with(mean, frames=frames - 1), variance).any()
+    assert corrected_markers(layout_with(mean, frames=frames), variance).tolist() == \
+        [False, False, True, False]
+    assert not corrected_markers(layout_with(10.0 * mean, frames=MIN_FRAMES - 1),
+                                 variance).any()
 
 
 def test_layout_residuals_accumulate_against_the_declared_layout():
+    variance = (0.5e-3) ** 2
     layout = LayoutResiduals.start(SQUARE)
     true = SQUARE.copy()
     true[1] += [0.0, 0.002, 0.0]
     for angle in (0.0, 0.5, 1.0):
-        layout = layout.with_frame(true @ rotation_z(angle).T)
+        layout = layout.with_frame(true @ rotation_z(angle).T, variance)
     assert layout.frames == 3
-    assert np.allclose(layout.mean[1], [0.0, 0.0015, 0.0], atol=1e-12)
+    np.testing.assert_allclose(layout.long_mean[1], [0.0, 0.0015, 0.0], atol=1e-12)
+    np.testing.assert_allclose(layout.short_mean, layout.long_mean, atol=1e-12)
     assert layout.matches(SQUARE.copy()) and not layout.matches(true)
+
+
+def test_a_marker_knocked_later_restarts_its_mean():
+    """300 frames on the declared layout, then marker 1 knocked 2 mm: its recent mean leaves
+    the long one within a few frames and the long mean restarts from it, so 40 frames on it
+    holds most of the new residual (1.5 mm), where a mean over all 340 frames held 12 %."""
+    variance = (0.5e-3) ** 2
+    layout = LayoutResiduals.start(SQUARE)
+    for angle in np.linspace(0.0, 3.0, 300):
+        layout = layout.with_frame(SQUARE @ rotation_z(angle).T, variance)
+    assert not corrected_markers(layout, variance).any()
+    knocked = SQUARE.copy()
+    knocked[1] += [0.0, 0.002, 0.0]
+    for angle in np.linspace(3.0, 3.4, 40):
+        layout = layout.with_frame(knocked @ rotation_z(angle).T, variance)
+    assert layout.long_mean[1, 1] > 0.8 * 0.0015
+    assert corrected_markers(layout, variance)[1]
 
 
 def one_marker_off(size: float):

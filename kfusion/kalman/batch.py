@@ -15,13 +15,13 @@ from dataclasses import dataclass
 from typing import Any, cast
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from kfusion.conventions import BRIDGED, LOST
 from kfusion.kalman.engines import DEFAULT_ENGINE, ENGINES
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, merge_events, merge_order
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
-from kfusion.kalman.markers import shared_run_lengths
+from kfusion.kalman.markers import marker_fix_noise, shared_run_lengths
 from kfusion.kalman.model import BASE_SIZE, output_covariance, output_point, timestamp_jitter
 from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
 from kfusion.monitor import (
@@ -56,6 +56,19 @@ def resolve_parameters(recording: Recording, params: KalmanParameters | None,
         raise ValueError(f"KalmanParameters: unknown override {unknown[0]!r}; expected one of "
                          f"{list(FIELD_NAMES)}")
     return dataclasses.replace(params, **overrides) if overrides else params
+
+
+def marker_fix_parameters(params: KalmanParameters, body_positions: ArrayLike
+                          ) -> KalmanParameters:
+    """``params`` for marker-level fusion of markers at ``body_positions`` (n, 3) m: their
+    ``mocap_position_noise`` raised to the fitted origin's (:func:`kfusion.kalman.markers.
+    marker_fix_noise`), which the monitor compares its shadow gaps with and a fix shown alone
+    carries. The markers' own noise is ``marker_position_noise``, unchanged."""
+    noise = marker_fix_noise(body_positions, params.marker_position_noise ** 2,
+                             params.mocap_position_noise)
+    if noise == params.mocap_position_noise:
+        return params
+    return dataclasses.replace(params, mocap_position_noise=noise)
 
 
 def make_fusion(recording: Recording, params: KalmanParameters, engine: str = "filterpy"
@@ -680,6 +693,8 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
     engine = measurement_engine(engine, measurement)
     recording, held = without_held_frames(recording)  # poses held through occlusions
     params = resolve_parameters(recording, params, overrides)
+    if measurement == MARKERS:
+        params = marker_fix_parameters(params, marker_inputs(recording)[1])
     watcher = make_monitor(recording, params, monitor, engine)
     # without a monitor the compiled engine runs the whole loop in one kernel; with one (it
     # watches the filter event by event), the compiled step functions (CompiledFusion)

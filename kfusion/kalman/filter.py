@@ -120,6 +120,7 @@ from kfusion.kalman.markers import (
     marker_nis,
     marker_noise,
     marker_pose,
+    origin_covariance,
     pooled_innovation,
     stacked_measurement,
 )
@@ -566,14 +567,14 @@ class KalmanFusion:
         if self._layout is None or not self._layout.matches(body):
             self._layout = LayoutResiduals.start(body)
         layout = self._layout
-        placed = body + np.where(self._layout_corrected()[:, None], layout.mean, 0.0)
+        placed = body + np.where(self._layout_corrected()[:, None], layout.long_mean, 0.0)
         outcome = self._update_markers_valid(t, seen[visible], placed[visible], shared_frames,
                                              placed[~visible])
         if visible.all() and outcome.accepted and outcome.markers_used == len(body) \
                 and outcome.marker_origin is not None and self._last_orientation_fix == t:
             # every marker fused, their pose taken as the orientation fix: the layout's
             # residuals (kfusion.kalman.marker_layout), always against the declared layout
-            self._layout = layout.with_frame(seen)
+            self._layout = layout.with_frame(seen, self.params.marker_position_noise ** 2)
         return outcome
 
     def _layout_corrected(self) -> NDArray[np.bool_]:
@@ -581,8 +582,7 @@ class KalmanFusion:
         (:func:`kfusion.kalman.marker_layout.corrected_markers`)."""
         layout = self._layout
         assert layout is not None
-        return corrected_markers(layout.mean, layout.frames,
-                                 self.params.marker_position_noise ** 2)
+        return corrected_markers(layout, self.params.marker_position_noise ** 2)
 
     @property
     def layout_variance(self) -> float:
@@ -593,7 +593,7 @@ class KalmanFusion:
         layout = self._layout
         if layout is None or layout.frames == 0:
             return 0.0
-        return origin_variance(layout.mean, layout.body, self._layout_corrected())
+        return origin_variance(layout, self.params.marker_position_noise ** 2)
 
     def _frame_time(self, t: float, where: str) -> float:
         """A mocap frame's time (:func:`frame_time` against the state's time)."""
@@ -1062,8 +1062,18 @@ class KalmanFusion:
                 self._inflate_for_reacquisition(innovations[keep].mean(axis=0), since)
         if self._interval is not None:
             self._prior = (np.array(self._kf.x, dtype=float), np.array(self._kf.P, dtype=float))
-        # z - c = H x + r, fused as one stacked measurement (filterpy's Joseph-form update)
-        self._kf.update(points[keep].ravel() - offset_all[rows], R=R_used, H=H_used)
+        if q_global_imu is not None and pose is not None and keep.all():
+            # the orientation is these markers' own fit: their information is the fit's
+            # origin, with its own covariance (the orientation error it carries is the
+            # markers' noise, not independent of it, as the stacked rows would take it: they
+            # left the lever's part of the bound at 0.5-0.7 of its size), fused once
+            covariance = R_global_body @ origin_covariance(body - lever, marker_variance) \
+                @ R_global_body.T
+            self._kf.update(np.asarray(pose[0], dtype=float) - offset,
+                            R=0.5 * (covariance + covariance.T), H=H)
+        else:
+            # z - c = H x + r, fused as one stacked measurement (filterpy's Joseph-form update)
+            self._kf.update(points[keep].ravel() - offset_all[rows], R=R_used, H=H_used)
         self._symmetrise()
         if q_global_imu is not None:
             orientation.correct(q_global_imu, fit_variance)

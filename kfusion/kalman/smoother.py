@@ -59,6 +59,7 @@ from kfusion.kalman.batch import (
     kernel_inputs,
     make_fusion,
     make_monitor,
+    marker_fix_parameters,
     marker_inputs,
     measurement_engine,
     monitored_kernel_rows,
@@ -539,6 +540,8 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     engine = measurement_engine(engine, measurement)
     recording, _ = without_held_frames(recording)  # poses held through occlusions
     params = resolve_parameters(recording, params, overrides)
+    if measurement == MARKERS:
+        params = marker_fix_parameters(params, marker_inputs(recording)[1])
     watcher = make_monitor(recording, params, monitor, engine)
     m = len(recording.mocap)
     rows: tuple[_RowRecorder, Replay] | None = None
