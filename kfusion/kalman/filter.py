@@ -529,9 +529,13 @@ class KalmanFusion:
         (``reacquire_after_s`` after the last fix) only when the prediction tells their labels
         from any other labelling by the cluster's markers (:func:`kfusion.kalman.markers.
         labels_ambiguous`), and a lone one never after ``max_bridge_s``. The markers that pass
-        are
-        fused together with their correlated noise (:func:`kfusion.kalman.markers.
-        marker_noise`). The first fix needs 3 markers (the orientation and position are
+        are fused together with their correlated noise (:func:`kfusion.kalman.markers.
+        marker_noise`), or, where all of them passed and their pose is the orientation fix, as
+        that pose's origin with its covariance (:func:`kfusion.kalman.markers.
+        origin_covariance`). The layout is checked against the data as frames come
+        (:mod:`kfusion.kalman.marker_layout`): markers whose mean residual is significant are
+        placed where the data put them, and :attr:`layout_variance` is what stays unknown.
+        The first fix needs 3 markers (the orientation and position are
         initialised from their pose).
 
         Args:

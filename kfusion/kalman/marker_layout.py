@@ -19,10 +19,13 @@ residual from the Kabsch pose of all of them, in the body frame::
 
     r_i = R^T (z_i - p) - m_i        (the noise averages out; a layout error does not)
 
-Its mean over N frames, ``rbar_i``, estimates the layout error less the rigid part the fit
-absorbed. So, online:
+Its mean ``rbar_i`` estimates the layout error less the rigid part the fit absorbed. Two means
+are kept: a long one (about :data:`LONG_FRAMES` frames, exponential memory) and a recent one
+(about :data:`SHORT_FRAMES`); where the recent one leaves the long one (a marker knocked during
+the take), the long one restarts from it (:meth:`LayoutResiduals.with_frame`: a mean over every
+frame since the start lagged a knock at 10 s, and left 3.8 % of the rows beyond). So, online:
 
-- **correct**: a marker whose mean residual is significant (``N |rbar_i|^2 / sigma_m^2`` beyond
+- **correct**: a marker whose long mean is significant (``N |rbar_i|^2 / sigma_m^2`` beyond
   chi-square(3) at 0.999, :data:`SIGNIFICANCE`; N >= :data:`MIN_FRAMES`) is placed at
   ``m_i + rbar_i``, so every subset agrees with the whole cluster's pose;
 - **cover** what stays unknown (:func:`origin_variance`), as a common error added to the bound,
@@ -30,12 +33,16 @@ absorbed. So, online:
   ``sigma_delta^2 = sum_i |rbar_i|^2 / (3n - 6)`` (a rigid fit takes 6 of the 3n coordinates:
   ``E sum |r_i|^2 = (3n - 6) sigma^2`` for independent errors of variance sigma^2 per axis),
   carried to the origin as a Kabsch fit carries noise, ``sigma_delta^2 (1/n + |mbar|^2 /
-  lambda_min(J))`` (:func:`kfusion.kalman.markers.fit_angle_variance`); plus ``|rbar_i|^2 / 3``
-  of the largest mean residual left uncorrected (a subset's fix moves by at most that).
+  lambda_min(J))`` (:func:`kfusion.kalman.markers.fit_angle_variance`), and once a residual is
+  significant at least one marker's worst case, ``kappa sum_i |rbar_i|^2 / 3``
+  (:func:`single_marker_gain`); plus ``|e_i|^2 / 3`` of the largest residual the placement
+  leaves (an uncorrected marker's, or a recent one's beyond its correction: a subset's fix
+  moves by at most that).
 
 Without a layout error the mean residuals are the noise's, ``E |rbar_i|^2 ~ sigma_m^2 / N``, so
-the term is what N frames leave unknown about the layout and fades as they accumulate (0.01 mm
-after 10 s at 100 Hz); with one, it stays.
+the term is what the frames leave unknown about the layout and fades as they accumulate (to
+about 0.01 mm after 5 s at 100 Hz); with one, it stays. A 3-marker cluster leaves a marker moved
+out of its plane no residual at all: that error is not seen and not covered.
 """
 
 from __future__ import annotations

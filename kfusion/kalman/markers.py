@@ -23,7 +23,10 @@ covariance is isotropic (``sigma_theta^2 I`` in any frame)::
 One ``dtheta`` moves every marker, so the term is correlated between markers: the markers of a
 frame are fused as one stacked measurement (3k rows) with the full noise matrix
 (:func:`marker_noise`), never as k independent ones (which would average the orientation error
-away as if it were white).
+away as if it were white). Where the frame's own pose (3 or more markers) is the orientation
+fix, ``dtheta`` is those markers' noise, not independent of it: the frame is then fused once as
+its fitted origin with :func:`origin_covariance` (the stacked rows left the lever's part of the
+bound at 0.5-0.7 of its size with the origin 15 cm from the cluster).
 
 Correlated orientation error. With fewer than 3 markers the orientation is the gyroscope's, and
 its error ``dtheta`` barely changes from one frame to the next: it is common to every frame fused
