@@ -69,6 +69,17 @@ LONG_FRAMES = 500
 SHORT_FRAMES = 20
 """Memory (frames) of the recent mean residual that watches for a change (0.2 s at 100 Hz)."""
 
+SPREAD_FRAMES = 100
+"""Memory (frames) of each marker's mean squared residual about its long mean (1 s at 100 Hz):
+the wobble a mean cannot show (:func:`spread_excess`)."""
+
+UNSETTLED_FRAMES = 200
+"""Frames after a change during which a marker is unsettled (2 s at 100 Hz): not corrected,
+and covered by the largest recent mean residual it has shown since the change. A marker that
+keeps changing (a loose base wobbling 1 mm at 1 Hz) stays unsettled: each restart made its
+long mean follow the wobble, and the bound read it near zero at every crossing (2.7-4.4 % of
+the rows beyond)."""
+
 
 @dataclass(frozen=True)
 class LayoutResiduals:
@@ -82,6 +93,12 @@ class LayoutResiduals:
         short_mean: (n, 3) the same over the last :data:`SHORT_FRAMES` or so, m.
         frames: frames with every marker fused.
         gain: :func:`single_marker_gain` of ``body`` (NaN: computed on use).
+        since_change: (n,) frames since each marker's last change (None: no change yet).
+        peak: (n,) m^2, the largest ``|short_i|^2`` (or long mean left at a change) since the
+            change, while the marker is unsettled (:data:`UNSETTLED_FRAMES`); 0 once settled.
+        spread: (n,) m^2, each marker's mean ``|r_i - long_i|^2`` over the last
+            :data:`SPREAD_FRAMES` or so (None before a frame).
+        shares: :func:`residual_shares` of ``body`` (None: computed on use).
     """
 
     body: NDArray[np.float64]
@@ -90,12 +107,24 @@ class LayoutResiduals:
     short_mean: NDArray[np.float64]
     frames: int = 0
     gain: float = math.nan
+    since_change: NDArray[np.int_] | None = None
+    peak: NDArray[np.float64] | None = None
+    spread: NDArray[np.float64] | None = None
+    shares: NDArray[np.float64] | None = None
 
     @classmethod
     def start(cls, body_positions: ArrayLike) -> LayoutResiduals:
         body = np.array(body_positions, dtype=float).reshape(-1, 3)
         return cls(body, np.zeros_like(body), np.zeros(len(body), dtype=int),
-                   np.zeros_like(body), 0, single_marker_gain(body))
+                   np.zeros_like(body), 0, single_marker_gain(body),
+                   shares=residual_shares(body))
+
+    @property
+    def unsettled(self) -> NDArray[np.bool_]:
+        """(n,) markers changed within the last :data:`UNSETTLED_FRAMES` frames."""
+        if self.since_change is None:
+            return np.zeros(len(self.body), dtype=bool)
+        return np.asarray(self.since_change < UNSETTLED_FRAMES)
 
     def matches(self, body_positions: NDArray[np.float64]) -> bool:
         """This is the layout ``body_positions`` (n, 3) m."""
@@ -113,13 +142,60 @@ class LayoutResiduals:
         :data:`MIN_FRAMES` frames."""
         r = residuals(points, self.body)
         frames = self.frames + 1
+        about = np.sum((r - self.long_mean) ** 2, axis=1)
+        spread = about if self.spread is None else \
+            self.spread + (about - self.spread) / min(frames, SPREAD_FRAMES)
         short = self.short_mean + (r - self.short_mean) / min(frames, SHORT_FRAMES)
         long_frames = np.minimum(self.long_frames + 1, LONG_FRAMES)
         long = self.long_mean + (r - self.long_mean) / long_frames[:, None]
         moved = changed(short, long, frames, marker_variance)
+        since = None
+        peak = None
+        if moved.any() or self.since_change is not None:
+            previous = (np.full(len(self.body), UNSETTLED_FRAMES) if self.since_change is None
+                        else self.since_change)
+            since = np.where(moved, 0, np.minimum(previous + 1, UNSETTLED_FRAMES))
+            held = np.zeros(len(self.body)) if self.peak is None else self.peak
+            left = np.where(moved, np.sum(long * long, axis=1), 0.0)  # the layout it left
+            peak = np.where(since < UNSETTLED_FRAMES,
+                            np.maximum(np.maximum(held, left), np.sum(short * short, axis=1)),
+                            0.0)
         long = np.where(moved[:, None], short, long)
         long_frames = np.where(moved, 1, long_frames)
-        return LayoutResiduals(self.body, long, long_frames, short, frames, self.gain)
+        return LayoutResiduals(self.body, long, long_frames, short, frames, self.gain, since,
+                               peak, spread, self.shares)
+
+
+def spread_excess(layout: LayoutResiduals, marker_variance: float) -> NDArray[np.float64]:
+    """(n,) m^2: each marker's residual spread beyond its noise's, where significant, else 0.
+
+    A rigid fit of n markers of noise sigma_m^2 per axis leaves each residual
+    ``E |r_i|^2 = s_i sigma_m^2`` (:func:`residual_shares`, summing to ``3n - 6``).
+    A marker whose layout error varies (a loose base wobbling faster than the means follow)
+    has more; beyond 1.5 times that (noise alone's reached 1.28 over 4 simulated takes), after
+    :data:`SPREAD_FRAMES` / 2 frames, the excess counts (a sine of amplitude A adds ``A^2 / 2``;
+    :func:`origin_variance` covers ``2 x excess``, its peak). A marker noisier than
+    ``marker_position_noise`` shows the same, and is covered alike."""
+    count = len(layout.body)
+    if layout.spread is None or layout.frames < SPREAD_FRAMES // 2 or not marker_variance > 0:
+        return np.zeros(count)
+    shares = residual_shares(layout.body) if layout.shares is None else layout.shares
+    expected = shares * marker_variance
+    return np.where(layout.spread > 1.5 * expected, layout.spread - expected, 0.0)
+
+
+def residual_shares(body_positions: ArrayLike) -> NDArray[np.float64]:
+    """(n,) ``E |r_i|^2 / sigma_m^2`` of each marker's residual from a rigid fit of all n, for
+    independent noise: the trace of marker i's 3x3 block of ``I - M M^+`` (M of
+    :func:`single_marker_gain`; they sum to ``3n - 6``). A marker far from the others keeps
+    less of its noise in its residual (the fit follows it more)."""
+    from kfusion.kalman.markers import skew
+
+    body = np.asarray(body_positions, dtype=float).reshape(-1, 3)
+    M = np.vstack([np.hstack([np.eye(3), -skew(marker)]) for marker in body])
+    residual_map = np.eye(3 * len(body)) - M @ np.linalg.pinv(M)
+    return np.array([float(np.trace(residual_map[3 * i:3 * i + 3, 3 * i:3 * i + 3]))
+                     for i in range(len(body))])
 
 
 def changed(short_mean: ArrayLike, long_mean: ArrayLike, frames: int,
@@ -196,7 +272,7 @@ def corrected_markers(layout: LayoutResiduals, marker_variance: float) -> NDArra
     if not marker_variance > 0:
         return np.zeros(len(mean), dtype=bool)
     frames = layout.long_frames
-    return np.asarray((frames >= MIN_FRAMES)
+    return np.asarray((frames >= MIN_FRAMES) & ~layout.unsettled
                       & (frames * np.sum(mean * mean, axis=1) / marker_variance > SIGNIFICANCE))
 
 
@@ -220,13 +296,22 @@ def origin_variance(layout: LayoutResiduals, marker_variance: float) -> float:
     moved = changed(layout.short_mean, applied, layout.frames, marker_variance)
     current = np.where(moved[:, None], layout.short_mean, layout.long_mean)
     left = np.where(moved[:, None], recent, np.where(corrected[:, None], 0.0, current))
-    squared = float(np.sum(current * current))
+    current_squared = np.sum(current * current, axis=1)
+    left_squared = np.sum(left * left, axis=1)
+    if layout.peak is not None:  # unsettled markers: the largest residual since their change
+        current_squared = np.maximum(current_squared, layout.peak)
+        left_squared = np.maximum(left_squared, layout.peak)
+    wobble = 2.0 * spread_excess(layout, marker_variance)  # a varying error's peak
+    current_squared = np.maximum(current_squared, wobble)
+    left_squared = np.maximum(left_squared, wobble)
+    squared = float(np.sum(current_squared))
     layout_variance = squared / (3 * count - 6)
     centroid = body.mean(axis=0)
     rigid = layout_variance / count + float(centroid @ centroid) * fit_angle_variance(
         body, layout_variance)
     gain = single_marker_gain(body) if math.isnan(layout.gain) else layout.gain
-    if (corrected.any() or moved.any()) and math.isfinite(gain):
+    if (corrected.any() or moved.any() or layout.unsettled.any() or wobble.any()) \
+            and math.isfinite(gain):
         # a layout error the data show is more likely one marker's than independent ones
         rigid = max(rigid, gain * squared / 3.0)
-    return rigid + float(np.max(np.sum(left * left, axis=1))) / 3.0
+    return rigid + float(np.max(left_squared)) / 3.0
