@@ -23,7 +23,10 @@ Its mean ``rbar_i`` estimates the layout error less the rigid part the fit absor
 are kept: a long one (about :data:`LONG_FRAMES` frames, exponential memory) and a recent one
 (about :data:`SHORT_FRAMES`); where the recent one leaves the long one (a marker knocked during
 the take), the long one restarts from it (:meth:`LayoutResiduals.with_frame`: a mean over every
-frame since the start lagged a knock at 10 s, and left 3.8 % of the rows beyond). So, online:
+frame since the start lagged a knock at 10 s, and left 3.8 % of the rows beyond); the marker
+then stays unsettled for :data:`UNSETTLED_FRAMES`, covered by its largest recent residual. A
+marker whose residuals spread beyond its noise's share (:func:`spread_excess`: a loose base
+wobbling faster than the means follow) is covered at the wobble's peak. So, online:
 
 - **correct**: a marker whose long mean is significant (``N |rbar_i|^2 / sigma_m^2`` beyond
   chi-square(3) at 0.999, :data:`SIGNIFICANCE`; N >= :data:`MIN_FRAMES`) is placed at
