@@ -192,11 +192,8 @@ def residual_shares(body_positions: ArrayLike) -> NDArray[np.float64]:
     independent noise: the trace of marker i's 3x3 block of ``I - M M^+`` (M of
     :func:`single_marker_gain`; they sum to ``3n - 6``). A marker far from the others keeps
     less of its noise in its residual (the fit follows it more)."""
-    from kfusion.kalman.markers import skew
-
     body = np.asarray(body_positions, dtype=float).reshape(-1, 3)
-    M = np.vstack([np.hstack([np.eye(3), -skew(marker)]) for marker in body])
-    residual_map = np.eye(3 * len(body)) - M @ np.linalg.pinv(M)
+    _, residual_map = rigid_fit_maps(body)
     return np.array([float(np.trace(residual_map[3 * i:3 * i + 3, 3 * i:3 * i + 3]))
                      for i in range(len(body))])
 
@@ -211,6 +208,19 @@ def changed(short_mean: ArrayLike, long_mean: ArrayLike, frames: int,
         return np.zeros(len(difference), dtype=bool)
     return np.asarray(SHORT_FRAMES * np.sum(difference * difference, axis=1) / marker_variance
                       > SIGNIFICANCE)
+
+
+def rigid_fit_maps(body_positions: ArrayLike
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(M^+ (6, 3n), I - M M^+ (3n, 3n))`` of the linearised rigid fit of n markers (body
+    frame, m): stacked marker displacements d give the fit's translation and small rotation
+    ``M^+ d`` and the residuals ``(I - M M^+) d``, with rows ``[I, -[m_i x]]`` of M."""
+    from kfusion.kalman.markers import skew
+
+    body = np.asarray(body_positions, dtype=float).reshape(-1, 3)
+    M = np.vstack([np.hstack([np.eye(3), -skew(marker)]) for marker in body])  # (3n, 6)
+    pseudo_inverse = np.linalg.pinv(M)
+    return pseudo_inverse, np.eye(3 * len(body)) - M @ pseudo_inverse
 
 
 def single_marker_gain(body_positions: ArrayLike) -> float:
@@ -229,13 +239,9 @@ def single_marker_gain(body_positions: ArrayLike) -> float:
     Args:
         body_positions: (n, 3) the layout, m; n >= 3.
     """
-    from kfusion.kalman.markers import skew
-
     body = np.asarray(body_positions, dtype=float).reshape(-1, 3)
     count = len(body)
-    M = np.vstack([np.hstack([np.eye(3), -skew(marker)]) for marker in body])  # (3n, 6)
-    pseudo_inverse = np.linalg.pinv(M)
-    residual_map = np.eye(3 * count) - M @ pseudo_inverse
+    pseudo_inverse, residual_map = rigid_fit_maps(body)
     largest = 0.0
     for marker in range(count):
         columns = slice(3 * marker, 3 * marker + 3)
@@ -290,7 +296,9 @@ def origin_variance(layout: LayoutResiduals, marker_variance: float) -> float:
     marker's residual is significant, the first term is at least ``kappa sum_i |d_i|^2 / 3``
     (``kappa``: :func:`single_marker_gain`; the origin's error of one marker off, as a vector
     of unknown direction), unless one marker's error can hide (kappa infinite: a 3-marker
-    cluster does not see a marker moved out of its plane)."""
+    cluster does not see a marker moved out of its plane). An unsettled marker's ``|d_i|^2``
+    and ``|e_i|^2`` are at least its peak since its change, and any marker's at least twice
+    its :func:`spread_excess`."""
     body = layout.body
     count = len(body)
     corrected = corrected_markers(layout, marker_variance)
