@@ -159,9 +159,9 @@ from kfusion.conventions import (
     vector_length,
 )
 from kfusion.guards import YamlError, load_yaml, real_number, refuse_masked, short_repr
+from kfusion.kalman.batch import marker_fix_parameters
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, event_key
 from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, OCCLUDED, REACQUIRED
-from kfusion.kalman.markers import marker_fix_noise
 from kfusion.kalman.model import VELOCITY
 from kfusion.kalman.parameters import KalmanParameters
 from kfusion.monitor import CLOCK, IMU_MOTION, MonitorReport, held_at_frame
@@ -1183,12 +1183,8 @@ class Tracker:
         self._marker_names, self._marker_body = _marker_body(markers)
         if self._marker_body is not None and isinstance(self.params, KalmanParameters):
             # a marker-level fix is the cluster's fitted origin: the monitor and a fix shown
-            # alone take its noise (kfusion.kalman.batch.marker_fix_parameters, the batch
-            # filter's)
-            noise = marker_fix_noise(self._marker_body, self.params.marker_position_noise ** 2,
-                                     self.params.mocap_position_noise)
-            if noise != self.params.mocap_position_noise:
-                self.params = dataclasses.replace(self.params, mocap_position_noise=noise)
+            # alone take its noise, as in the batch filter
+            self.params = marker_fix_parameters(self.params, self._marker_body)
         self._estimator = self._new_estimator()
         self.max_bridge_s = self._estimator.max_bridge_s
         if options.fix_timeout_s > self.max_bridge_s:
