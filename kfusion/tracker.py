@@ -886,6 +886,8 @@ class _KalmanEstimator:
                 covariance = suspected_clock_fix_covariance(covariance,
                                                             self._mocap_noise_variance)
             covariance = covariance + self.monitor.cover_rivals(t, step.position, _ZERO_3X3)
+            # the orientation's error times the lever (batch.monitored_output's order)
+            covariance = covariance + step.orientation_covariance
         covariance = self._with_layout(covariance)
         std = np.sqrt(np.diag(covariance))
         return _Reading(step.position, step.velocity, 0.5 * (covariance + covariance.T), std)
@@ -903,8 +905,10 @@ class _KalmanEstimator:
         from the filter's estimate ``step`` there: scaled by the monitor at its horizon or at
         ``frame_horizon`` (s, the gap's last bridged frame before t; 0 if none), whichever
         scale is larger, plus its rivals' part, formed alone and added in the batch recorder's
-        order of operations (P + (d d^T + R), not (P + d d^T) + R): the two agree to the bit
-        (:func:`kfusion.kalman.batch.monitored_output`); plus, with a suspected clock offset,
+        order of operations (P + (d d^T + R), not (P + d d^T) + R), plus the orientation's
+        part (:attr:`~kfusion.kalman.filter.FilterEstimate.orientation_covariance`): the two
+        agree to the bit (:func:`kfusion.kalman.batch.monitored_output`); plus, with a
+        suspected clock offset,
         the timing error it implies (the Tracker's alone: the batch filter has no clock
         watch)."""
         monitor = self.monitor
@@ -912,6 +916,9 @@ class _KalmanEstimator:
                     monitor.variance_scale(frame_horizon))
         covariance = step.position_covariance * scale
         covariance = covariance + monitor.cover_rivals(t, step.position, _ZERO_3X3)
+        # the orientation's error times the lever, which no scale of the position filter's
+        # covariance stands for, held with the rest
+        covariance = covariance + step.orientation_covariance
         if suspected_clock is not None and self._fix_velocity is not None:
             change = self._fusion.x[VELOCITY] - self._fix_velocity
             covariance = covariance + timing_error_covariance(*suspected_clock, change)

@@ -86,6 +86,61 @@ def test_orientation_tracker_learns_a_gyroscope_bias_from_mocap():
     assert angle > before
 
 
+def test_a_fix_keeps_the_scale_error_rotation_it_did_not_absorb():
+    """A gyroscope scale error S is constant: the angle error it builds, -S r, survives a fix
+    but for the fix's gain. By hand: 0.1 s at 1 rad/s about z gives r = (0, 0, 0.1) rad and a
+    scale-error variance 0.01^2 |r|^2 = 1e-6 rad^2; a fix of gain K leaves (1 - K) r."""
+    tracker = OrientationTracker(0.0, 0.0, 0.004, 0.0, gyroscope_scale_error=0.01)
+    tracker.initialise((1.0, 0.0, 0.0, 0.0))
+    for _ in range(20):
+        tracker.propagate((0.0, 0.0, 1.0), (0.0, 0.0, 1.0), 0.005)
+    np.testing.assert_allclose(tracker.state.rotation_since_fix, (0.0, 0.0, 0.1), atol=1e-15)
+    np.testing.assert_allclose(tracker.state.scale_variance_peak, 1e-6, rtol=1e-12)
+    angle = tracker.angle_variance  # 0.004^2 from the first fix, plus the 1e-6
+    np.testing.assert_allclose(angle, 0.004 ** 2 + 1e-6, rtol=1e-12)
+    gain = angle / (angle + 0.004 ** 2)
+    tracker.correct(tracker.state.quaternion)
+    np.testing.assert_allclose(tracker.state.rotation_since_fix, (0.0, 0.0, 0.1 * (1 - gain)),
+                               atol=1e-15)
+    np.testing.assert_allclose(tracker.state.scale_variance_peak,
+                               1e-4 * (0.1 * (1 - gain)) ** 2, rtol=1e-12)
+    # turning on, the variance grows again only past what the fix left
+    before = tracker.angle_variance
+    tracker.propagate((0.0, 0.0, 1.0), (0.0, 0.0, 1.0), 0.005)
+    expected = 1e-4 * (0.1 * (1 - gain) + 0.005) ** 2 - 1e-4 * (0.1 * (1 - gain)) ** 2
+    np.testing.assert_allclose(tracker.angle_variance - before, expected, rtol=1e-9)
+
+
+def test_the_orientation_error_times_the_lever_is_in_the_output():
+    """The output is ``p - R l``: an orientation error dtheta moves it by ``a x dtheta`` with
+    ``a = R l``. By hand, a = (0, 0, L): variance sigma^2 L^2 on x and y, none on z; and the
+    filter's estimate carries it with ``a`` from its own orientation and lever."""
+    from kfusion.kalman import model
+    from kfusion.kalman.batch import make_fusion, process_recording
+
+    np.testing.assert_allclose(model.orientation_error_covariance(np.array([0.0, 0.0, 0.1]),
+                                                                  4e-6),
+                               np.diag([4e-8, 4e-8, 0.0]), rtol=1e-12, atol=0)
+    a = np.array([0.03, -0.05, 0.08])
+    cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    np.testing.assert_allclose(model.orientation_error_covariance(a, 4e-6),
+                               4e-6 * cross @ cross.T, rtol=1e-12, atol=1e-24)
+    assert not model.orientation_error_covariance(np.zeros(3), math.inf).any()  # no lever
+    lever = np.array([0.02, -0.01, 0.05])
+    recording = spinning_recording(lever, gap=(500, 530), swing=1.5)
+    for engine in ("filterpy", "compiled"):
+        fusion = make_fusion(recording, KalmanParameters.from_profiles("um7"), engine)
+        process_recording(recording, fusion, lambda row, outcome: None)
+        estimate = fusion.estimate()
+        arm = (matrix_from_wxyz(np.asarray(estimate.orientation)) @ lever)
+        cross = np.array([[0.0, -arm[2], arm[1]], [arm[2], 0.0, -arm[0]],
+                          [-arm[1], arm[0], 0.0]])
+        assert fusion.angle_variance > 0
+        np.testing.assert_allclose(estimate.orientation_covariance,
+                                   fusion.angle_variance * cross @ cross.T, rtol=1e-9,
+                                   atol=1e-24)
+
+
 # ------------------------------------------------------------------------------------------
 # the model against hand-derived numbers
 # ------------------------------------------------------------------------------------------
@@ -504,18 +559,26 @@ def test_lost_before_the_first_fix_and_no_fix_without_orientation():
 # ------------------------------------------------------------------------------------------
 
 
-def spinning_recording(lever: np.ndarray, gap: tuple[int, int], rate: float = 3.0
-                       ) -> Recording:
-    """A body turning at ``rate`` rad/s about global z around its fixed origin; the IMU sits at
-    ``lever`` (body frame) and feels the centripetal acceleration. IMU 200 Hz, mocap 100 Hz."""
+def spinning_recording(lever: np.ndarray, gap: tuple[int, int], rate: float = 3.0,
+                       swing: float = 0.0) -> Recording:
+    """A body turning about global z around its fixed origin at ``rate + swing sin(pi t)``
+    rad/s; the IMU sits at ``lever`` (body frame) and feels the centripetal acceleration
+    ``-omega^2 l`` and, with a swing, the tangential one ``alpha z x l`` (both body frame: a
+    constant rate makes them a constant the filter can take for an accelerometer bias). IMU
+    200 Hz, mocap 100 Hz."""
     imu_t = np.arange(0.0, 6.0 + 1e-9, 0.005)
-    angle = rate * imu_t
+    angle = rate * imu_t + swing / np.pi * (1.0 - np.cos(np.pi * imu_t))
+    omega = rate + swing * np.sin(np.pi * imu_t)
+    alpha = swing * np.pi * np.cos(np.pi * imu_t)
     q = np.column_stack([np.cos(angle / 2), np.zeros_like(angle), np.zeros_like(angle),
                          np.sin(angle / 2)])
     R = matrix_from_wxyz(q)
-    acceleration = -rate**2 * np.einsum("nij,j->ni", R, lever * [1, 1, 0])
+    in_plane = lever * [1, 1, 0]
+    tangential = np.array([-lever[1], lever[0], 0.0])
+    body_acceleration = -omega[:, None] ** 2 * in_plane + alpha[:, None] * tangential
+    acceleration = np.einsum("nij,nj->ni", R, body_acceleration)
     specific_force = np.einsum("nji,nj->ni", R, acceleration - GRAVITY)
-    gyroscope = np.tile([0.0, 0.0, rate], (len(imu_t), 1))
+    gyroscope = np.column_stack([np.zeros_like(omega), np.zeros_like(omega), omega])
     rows = np.arange(0, len(imu_t), 2)
     position = np.tile([0.4, -0.2, 1.0], (len(rows), 1))
     quaternion = q[rows].copy()
@@ -528,7 +591,8 @@ def spinning_recording(lever: np.ndarray, gap: tuple[int, int], rate: float = 3.
 
 def test_a_known_lever_arm_is_used_and_an_unknown_one_is_estimated():
     lever = np.array([0.02, -0.01, 0.0])
-    recording = spinning_recording(lever, gap=(500, 530))
+    # the rate swings, so the lever's acceleration is no constant (a bias would absorb one)
+    recording = spinning_recording(lever, gap=(500, 530), swing=1.5)
     params = KalmanParameters.from_profiles("um7", initial_bias_std=0.001)
     gap = slice(500, 530)
     truth = np.array([0.4, -0.2, 1.0])
@@ -541,10 +605,12 @@ def test_a_known_lever_arm_is_used_and_an_unknown_one_is_estimated():
     assert estimated.x.shape[1] == 12
     np.testing.assert_allclose(estimated.x[499, 9:11], lever[:2], atol=1e-3)
     assert np.abs(estimated.result.position[gap] - truth).max() < 1e-3
-    ignored = filter_recording(unknown, params, lever_arm_std=0.0)
-    # ignoring it costs the centripetal acceleration of 2.2 cm at 3 rad/s: centimetres in 0.3 s
+    ignored = run_filter(unknown, params, monitor=None, lever_arm_std=0.0).result
+    # ignoring it costs the lever's acceleration (0.05-0.45 m/s^2 here): 10 mm in 0.3 s
     assert np.abs(ignored.position[gap] - truth).max() > 5 * np.abs(
         estimated.result.position[gap] - truth).max()
+    # and the consistency monitor (the default) does not bridge with it
+    assert (filter_recording(unknown, params, lever_arm_std=0.0).status[gap] == LOST).all()
 
 
 # ------------------------------------------------------------------------------------------

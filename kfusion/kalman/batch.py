@@ -22,7 +22,14 @@ from kfusion.kalman.engines import DEFAULT_ENGINE, ENGINES
 from kfusion.kalman.events import IMU_STREAM, MOCAP_STREAM, merge_events, merge_order
 from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
 from kfusion.kalman.markers import marker_fix_noise, shared_run_lengths
-from kfusion.kalman.model import BASE_SIZE, output_covariance, output_point, timestamp_jitter
+from kfusion.kalman.model import (
+    BASE_SIZE,
+    orientation_error_variance,
+    output_arm,
+    output_covariance,
+    output_point,
+    timestamp_jitter,
+)
 from kfusion.kalman.parameters import FIELD_NAMES, KalmanParameters
 from kfusion.monitor import (
     ConsistencyMonitor,
@@ -416,18 +423,21 @@ def held_in_gaps(status: NDArray[np.str_], variance: NDArray[np.float64],
 
 def monitored_output(status: NDArray[np.str_], position: NDArray[np.float64],
                      variance: NDArray[np.float64], recorder: Any,
-                     horizon_s: NDArray[np.float64], edges_s: tuple[float, ...]
+                     horizon_s: NDArray[np.float64], edges_s: tuple[float, ...],
+                     orientation: NDArray[np.float64]
                      ) -> tuple[NDArray[np.str_], NDArray[np.float64], NDArray[np.float64],
                                 NDArray[np.float64]]:
     """The filter's rows as the consistency monitor reports them, from the recorder's
     (:class:`_RowRecorder`) reads: gaps scaled or ``lost`` (:func:`apply_monitor`), fixes
-    widened (:func:`at_fix_rows`), the rivals' variance added, the fix alone where the model
+    widened (:func:`at_fix_rows`), the rivals' variance and the orientation's part
+    ``orientation`` (m, 3) m^2 (:func:`orientation_rows`) added, the fix alone where the model
     was refused (:func:`fix_only_rows`) and bounds that never shrink within a gap
     (:func:`held_in_gaps`). Returns (status, position (m, 3) m, variance (m, 3) m^2, the
     monitor's scale per row); the Tracker computes each row the same way."""
     status, variance, scale = apply_monitor(status, variance, recorder.scale_tables,
                                             recorder.allowed, horizon_s, edges_s)
     variance = at_fix_rows(variance, recorder.at_fix_variance) + recorder.rival_variance
+    variance = variance + orientation
     status, position, variance = fix_only_rows(status, position, variance, recorder.allowed,
                                                recorder.fix_position, recorder.fix_variance)
     return status, position, held_in_gaps(status, variance, horizon_s), scale
@@ -458,6 +468,18 @@ def fix_only_rows(status: NDArray[np.str_], position: NDArray[np.float64],
     return status.astype(str), position, variance
 
 
+def orientation_rows(angle_variance: NDArray[np.float64], x: NDArray[np.float64],
+                     position: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per axis (m, 3) m^2: the orientation's part of each row's output
+    (:func:`kfusion.kalman.model.orientation_error_variance`) from the orientation tracker's
+    angle variance (m,) rad^2, the states (m, n) and their rigid-body points (m, 3) m (the arm
+    is :func:`kfusion.kalman.model.output_arm`); 0 where the filter is not initialised (NaN).
+    The Tracker adds the same term to its reading
+    (:attr:`kfusion.kalman.filter.FilterEstimate.orientation_covariance`)."""
+    variance = orientation_error_variance(output_arm(x, position), angle_variance)
+    return np.where(np.isnan(variance), 0.0, variance)
+
+
 class _RowRecorder:
     """Collects the filter's state and output map after each mocap row, the monitor's scales
     where the row's fix was not used, and whether the monitor still trusts the IMU model (with
@@ -486,6 +508,9 @@ class _RowRecorder:
         # (m,) m^2 per axis: the marker layout's common error (KalmanFusion.layout_variance;
         # 0 without marker frames)
         self.layout_variance = np.zeros(rows)
+        # (m,) rad^2: the orientation tracker's angle variance (the orientation's part of the
+        # output, orientation_rows; NaN where the filter is not initialised)
+        self.angle_variance = np.full(rows, np.nan)
         # (m,) m^2: the part of it at a fused fix from the edge-offset term
         # (ConsistencyMonitor.edge_offset_variance at h = 0): the filter's online cover for
         # fixes that may turn out to end before an occlusion; the smoother leaves it out
@@ -533,6 +558,7 @@ class _RowRecorder:
             self.output_matrix[row] = H
             self.output_offset[row] = offset
             self.layout_variance[row] = getattr(fusion, "layout_variance", 0.0)
+            self.angle_variance[row] = fusion.angle_variance
         if self.monitor is not None:
             self.record_monitor(row, outcome, initialised)
 
@@ -575,6 +601,7 @@ class _RowRecorder:
         recorder.tested = np.ones(rows, dtype=bool)
         recorder.rival_variance = np.zeros((rows, 3))
         recorder.layout_variance = np.zeros(rows)
+        recorder.angle_variance = run.angle_variance
         recorder.fix_edge_variance = np.zeros(rows)
         recorder.fix_position = np.full((rows, 3), np.nan)
         recorder.fix_variance = np.full((rows, 3), np.nan)
@@ -721,10 +748,15 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
                           if rows is not None or (kernel and recorder.x.shape[1] == BASE_SIZE)
                           else point_estimates(recorder.x, recorder.P, recorder.output_matrix,
                                                recorder.output_offset))
+    # the orientation's error times the lever: scaled by nothing, held in gaps with the rest
+    orientation = orientation_rows(recorder.angle_variance, recorder.x, position)
     scale = np.ones(len(status))
     if watcher is not None:
         status, position, variance, scale = monitored_output(
-            status, position, variance, recorder, since, watcher.params.horizon_edges_s)
+            status, position, variance, recorder, since, watcher.params.horizon_edges_s,
+            orientation)
+    else:
+        variance = variance + orientation
     # the marker layout's common error, last: the Tracker adds it to its reading's covariance
     variance = variance + recorder.layout_variance[:, None]
     std = np.sqrt(variance)

@@ -617,16 +617,21 @@ def orientation_propagate(orientation, w0, w1, dt, extra, config):
 def orientation_correct(orientation, q_measured, config):
     """Two-state Kalman correction per axis: ``S = P_tt + sigma_m^2``,
     ``K = [P_tt, P_tb] / S``, ``q <- q ⊗ Exp(K_t z)``, ``b_g <- b_g + K_b z``,
-    ``P <- (I - K H) P`` (:meth:`OrientationTracker.correct`)."""
+    ``P <- (I - K H) P``; the rotation a scale error acts on keeps ``(1 - K_t) r``
+    (:meth:`OrientationTracker.correct`, :func:`kfusion.kalman.orientation.absorbed_rotation`)."""
     innovation = quaternion_log(quaternion_product(conjugate(orientation[0:4]),
                                                    q_measured))
-    orientation[10:14] = 0.0
     angle, cross, bias = orientation[7], orientation[8], orientation[9]
     S = angle + config[C_ORIENTATION_VARIANCE]
     if S <= 0.0:
+        orientation[10:14] = 0.0
         orientation[0:4] = normalise(q_measured)
         return
     gain_angle = angle / S
+    keep = 1.0 - gain_angle
+    rx, ry, rz = keep * orientation[10], keep * orientation[11], keep * orientation[12]
+    orientation[10], orientation[11], orientation[12] = rx, ry, rz
+    orientation[13] = config[C_GYRO_SCALE_VARIANCE] * (rx * rx + ry * ry + rz * rz)
     gain_bias = cross / S
     correction = quaternion_exp(gain_angle * innovation[0], gain_angle * innovation[1],
                                 gain_angle * innovation[2])
@@ -1203,8 +1208,8 @@ def initial_state(n: int) -> NDArray[np.float64]:
 def filter_events(stream, index, begin, end, imu_t, accelerometer, gyroscope, imu_finite,
                   mocap_t, mocap_position, mocap_quaternion, visible, config, state, counters,
                   row_offset, out_x, out_P, out_H, out_offset, out_outcome, out_nis,
-                  out_y, out_S, out_dead_reckoned, out_x_predicted, out_P_predicted,
-                  out_transition, save_every, saved_states, saved_events):
+                  out_y, out_S, out_dead_reckoned, out_angle_variance, out_x_predicted,
+                  out_P_predicted, out_transition, save_every, saved_states, saved_events):
     """The batch loop over merged events ``begin`` to ``end`` - 1 (stream 0 IMU, 1 mocap; index
     its row) from the packed ``state`` (:func:`state_views`, updated in place). Fills one row
     of the outputs per mocap row (row ``r`` at ``r - row_offset``). Returns -1, or the event
@@ -1263,6 +1268,8 @@ pass runs the loop again from there (:func:`smooth_rows`)."""
             out_P[out] = P
             output_map_into(orientation[0:4], config, out_H[out], out_offset[out],
                             work_views(work, size)[6])
+            if out_angle_variance.shape[0] > 0:
+                out_angle_variance[out] = orientation[7]
             if smoothing:
                 out_x_predicted[out] = prior_x if fused else x
                 out_P_predicted[out] = prior_P if fused else P
@@ -1333,7 +1340,8 @@ def smooth_rows(stream, index, row_event, imu_t, accelerometer, gyroscope, imu_f
                       visible, config, state, counters, first_row, scratch_x, scratch_P,
                       scratch_H, scratch_offset, scratch_outcome, scratch_nis,
                       no_innovations, no_innovation_covariances, scratch_dead_reckoned,
-                      x_predicted, P_predicted, transitions, 0, no_states, no_events)
+                      np.zeros(0), x_predicted, P_predicted, transitions, 0, no_states,
+                      no_events)
         for k in range(last_row - 1, first_row - 2, -1):
             if k < 0 or segment[k] < 0 or segment[k + 1] != segment[k]:
                 continue
@@ -1372,14 +1380,15 @@ def point_rows(output_matrix, x, offset, P):
 
 @njit(cache=True)
 def extrapolate(t, x, P, orientation, scalars, config):
-    """State, covariance and ``q_global_imu`` at t >= the state's time holding the last sample,
-    without changing the state (:meth:`KalmanFusion._extrapolate`): the orientation propagated
+    """State, covariance, ``q_global_imu`` and its angle variance (rad^2) at t >= the state's
+    time holding the last sample, without changing the state
+    (:meth:`KalmanFusion._extrapolate`): the orientation propagated
     at the held rate, then ``x' = F x + B u``, ``P' = F P F^T + Q`` (symmetrised) with
     ``u = [f; f; g]`` and the held sample's extra variance."""
     dt = t - scalars[TIME]
     if (dt <= 0.0 or math.isnan(scalars[ACCELEROMETER]) or orientation[14] == 0.0
             or scalars[INITIALISED_FLAG] == 0.0):
-        return x.copy(), P.copy(), orientation[0:4].copy()
+        return x.copy(), P.copy(), orientation[0:4].copy(), orientation[7]
     n = x.shape[0]
     scratch = orientation.copy()
     f = scalars[ACCELEROMETER:ACCELEROMETER + 3].copy()
@@ -1398,7 +1407,7 @@ def extrapolate(t, x, P, orientation, scalars, config):
     F, B = interval_matrices(R0, R1, dt, n, config)
     x_next = matvec(F, x) + matvec(B, u)
     P_next = matmul(matmul(F, P), F.T.copy()) + Q
-    return x_next, 0.5 * (P_next + P_next.T), scratch[0:4].copy()
+    return x_next, 0.5 * (P_next + P_next.T), scratch[0:4].copy(), scratch[7]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1415,7 +1424,8 @@ class KernelRun:
                  outcome: NDArray[np.str_], nis: NDArray[np.float64],
                  dead_reckoned: NDArray[np.bool_], counters: dict[str, int],
                  failed_event: int, y: NDArray[np.float64] | None = None,
-                 S: NDArray[np.float64] | None = None) -> None:
+                 S: NDArray[np.float64] | None = None,
+                 angle_variance: NDArray[np.float64] | None = None) -> None:
         self.x = x
         self.P = P
         self.output_matrix = output_matrix
@@ -1429,6 +1439,11 @@ class KernelRun:
         # fused into a prediction, NaN elsewhere (UpdateOutcome.y, .S; run_kernel's)
         self.y = np.full((len(nis), 3), np.nan) if y is None else y
         self.S = np.full((len(nis), 3, 3), np.nan) if S is None else S
+        # per row, the orientation tracker's angle variance (m,) rad^2 (NaN before the filter
+        # is initialised): the orientation's part of the output (model.orientation_error_
+        # variance)
+        self.angle_variance = np.full(len(nis), np.nan) if angle_variance is None \
+            else angle_variance
         # smoother support (run_kernel(smoothing=True)): the kernel inputs, configuration,
         # first state and the states saved every SAVE_EVERY rows, for smooth_in_place
         self.replay: Replay | None = None
@@ -1503,6 +1518,7 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     out_y = np.full((rows, 3), np.nan)
     out_S = np.full((rows, 3, 3), np.nan)
     out_dead_reckoned = np.zeros(rows, dtype=bool)
+    out_angle_variance = np.full(rows, np.nan)
     counters = np.zeros(len(COUNTER_INDEX), dtype=np.int64)
     no_rows = np.zeros((0, size, size))
     first_state = initial_state(size)
@@ -1514,10 +1530,11 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     failed = filter_events(  # type: ignore[call-arg]
         inputs[0], inputs[1], 0, len(stream), *inputs[2:], config, state, counters, 0, out_x,
         out_P, out_H, out_offset, out_outcome, out_nis, out_y, out_S, out_dead_reckoned,
-        np.zeros((0, size)), no_rows, no_rows, save_every, saved_states, saved_events)
+        out_angle_variance, np.zeros((0, size)), no_rows, no_rows, save_every, saved_states,
+        saved_events)
     run = KernelRun(out_x, out_P, out_H, out_offset, _OUTCOME_LOOKUP[out_outcome], out_nis,
                     out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(), strict=True)),
-                    int(failed), out_y, out_S)
+                    int(failed), out_y, out_S, out_angle_variance)
     if save_every > 0:
         run.replay = Replay(inputs, config, first_state, saved_states)
         run.replay.saved_events = saved_events
@@ -1570,7 +1587,8 @@ class Checkpoints:
             inputs[0], inputs[1], begin, end, *inputs[2:9], visible, self.replay.config,
             state, self.counters, first_row, out_x, out_P, out_H, out_offset,
             np.full(rows, -1, dtype=np.int64), np.full(rows, np.nan), np.zeros((0, 3)),
-            np.zeros((0, 3, 3)), np.zeros(rows, dtype=bool), np.zeros((0, n)), no_rows, no_rows, 0,
+            np.zeros((0, 3, 3)), np.zeros(rows, dtype=bool), np.zeros(0), np.zeros((0, n)),
+            no_rows, no_rows, 0,
             np.zeros((0, len(state))), np.zeros(0, dtype=np.int64))
         if failed >= 0:
             raise RuntimeError(f"replay of events {begin}..{end}: the kernel stopped at "

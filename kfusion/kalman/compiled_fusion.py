@@ -205,17 +205,19 @@ class CompiledFusion:
         if not t >= time:
             raise ValueError(f"estimate: time {t!r} s is before the state's time "
                              f"({time!r} s); expected t >= {time!r}")
-        x, P, quaternion = compiled.extrapolate(t, self._x, self._P, self._orientation,
-                                                self._scalars, self._config)
+        x, P, quaternion, angle_variance = compiled.extrapolate(
+            t, self._x, self._P, self._orientation, self._scalars, self._config)
         last_nis = float(self._scalars[compiled.LAST_NIS])
         if not self.initialised:
             nan3 = np.full(3, np.nan)
             return FilterEstimate(t, nan3, np.full((3, 3), np.nan), nan3, nan3, nan3, nan3,
                                   quaternion, np.full(P.shape, np.nan), LOST, math.inf,
-                                  last_nis)
+                                  last_nis, np.full((3, 3), np.nan))
         H, offset = compiled.output_map(quaternion, self.size, self._config)
         position = model.output_point(H, x, offset)
         position_covariance = model.output_covariance(H, P)
+        orientation_covariance = model.orientation_error_covariance(
+            model.output_arm(x, position), float(angle_variance))
         last_fix = self._scalars[compiled.LAST_FIX]
         since = math.inf if math.isnan(last_fix) else t - float(last_fix)
         status = streamhealth.tracking_status(
@@ -225,7 +227,12 @@ class CompiledFusion:
         return FilterEstimate(
             t, position, position_covariance, np.sqrt(np.diag(position_covariance)),
             x[model.VELOCITY].copy(), x[model.BIAS].copy(), self._lever_in_use(x),
-            quaternion, P, status, since, last_nis)
+            quaternion, P, status, since, last_nis, orientation_covariance)
+
+    @property
+    def angle_variance(self) -> float:
+        """:attr:`KalmanFusion.angle_variance`: the orientation's angle variance now, rad^2."""
+        return float(self._orientation[7])
 
     def output_map(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(H (3, n), c (3,)): the rigid-body point is ``H x + c`` at the current orientation."""

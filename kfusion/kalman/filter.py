@@ -211,7 +211,8 @@ class FilterEstimate:
     Attributes:
         t: time, s.
         position: (3,) rigid-body point, m, global frame; NaN before the first fix.
-        position_covariance: (3, 3) its covariance, m^2.
+        position_covariance: (3, 3) the state's part of its covariance ``H P H^T``, m^2
+            (:func:`kfusion.kalman.model.output_covariance`).
         std: (3,) 1-sigma of the position per axis, m.
         velocity: (3,) of the IMU point, m/s, global frame.
         bias: (3,) accelerometer bias, m/s^2, IMU frame.
@@ -222,6 +223,11 @@ class FilterEstimate:
             (:func:`kfusion.streamhealth.tracking_status` with its default ``fix_timeout_s``).
         time_since_fix: s since the last accepted fix (inf before the first).
         nis: NIS of the last mocap frame compared (NaN if none).
+        orientation_covariance: (3, 3) the orientation's part of the point's covariance, m^2:
+            its error times the lever arm (:func:`kfusion.kalman.model.
+            orientation_error_covariance`; zero without a lever arm). The point's whole
+            covariance is ``position_covariance + orientation_covariance``: the Tracker and the
+            batch outputs report that sum.
     """
 
     t: float
@@ -236,6 +242,7 @@ class FilterEstimate:
     status: str
     time_since_fix: float
     nis: float
+    orientation_covariance: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -612,15 +619,17 @@ class KalmanFusion:
         if not t >= self._time:
             raise ValueError(f"estimate: time {t!r} s is before the state's time "
                              f"({self._time!r} s); expected t >= {self._time!r}")
-        x, P, quaternion = self._extrapolate(t)
+        x, P, quaternion, angle_variance = self._extrapolate(t)
         nan3 = np.full(3, np.nan)
         if not self._initialised:
             return FilterEstimate(t, nan3, np.full((3, 3), np.nan), nan3, nan3, nan3, nan3,
                               np.asarray(quaternion), np.full(P.shape, np.nan), LOST, math.inf,
-                              self._last_nis)
+                              self._last_nis, np.full((3, 3), np.nan))
         H, offset = self._output_map(quaternion)
         position = model.output_point(H, x, offset)
         position_covariance = model.output_covariance(H, P)
+        orientation_covariance = model.orientation_error_covariance(
+            model.output_arm(x, position), angle_variance)
         since = t - self._last_fix if self._last_fix is not None else math.inf
         status = streamhealth.tracking_status(
             since, self._last_frame_fused, fix_timeout_s=streamhealth.FIX_TIMEOUT_S,
@@ -629,7 +638,13 @@ class KalmanFusion:
         return FilterEstimate(
             t, position, position_covariance, np.sqrt(np.diag(position_covariance)),
             x[model.VELOCITY].copy(), x[model.BIAS].copy(), self._lever_in_use(x),
-            np.asarray(quaternion), P, status, since, self._last_nis)
+            np.asarray(quaternion), P, status, since, self._last_nis, orientation_covariance)
+
+    @property
+    def angle_variance(self) -> float:
+        """The orientation tracker's per-axis angle variance now, rad^2 (the orientation's part
+        of the output: :attr:`FilterEstimate.orientation_covariance`)."""
+        return self._orientation.angle_variance
 
     def output_map(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(H (3, n), c (3,)): the rigid-body point is ``H x + c`` at the current orientation."""
@@ -1199,15 +1214,16 @@ class KalmanFusion:
         return np.zeros(3)
 
     def _extrapolate(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64],
-                                              Quaternion]:
-        """State, covariance and orientation at t >= the state's time, without changing them."""
+                                              Quaternion, float]:
+        """State, covariance, orientation and its angle variance (rad^2) at t >= the state's
+        time, without changing them."""
         assert self._time is not None
         dt = t - self._time
         orientation = self._orientation
         if (dt <= 0.0 or self._accelerometer is None or self._gyroscope is None
                 or not orientation.state.initialised or not self._initialised):
             return (np.array(self._kf.x, dtype=float), np.array(self._kf.P, dtype=float),
-                    orientation.state.quaternion)
+                    orientation.state.quaternion, orientation.angle_variance)
         scratch = copy.copy(orientation)  # propagate a copy: estimate() never changes the state
         scratch.state = orientation.state.copy()
         f, omega = self._accelerometer, self._gyroscope
@@ -1226,4 +1242,4 @@ class KalmanFusion:
                                 bias_variance=bias_variance, size=self.size)
         x, P = self._kf.get_prediction(u=u, B=model.control_matrix(R0, R1, dt, self.size),
                                        F=model.transition_matrix(R0, R1, dt, self.size), Q=Q)
-        return np.asarray(x, dtype=float), 0.5 * (P + P.T), quaternion
+        return np.asarray(x, dtype=float), 0.5 * (P + P.T), quaternion, scratch.angle_variance

@@ -185,8 +185,62 @@ def output_point(H: NDArray[np.float64], x: NDArray[np.float64],
 
 
 def output_covariance(H: NDArray[np.float64], P: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The rigid-body point's covariance (3, 3) m^2: ``H P H^T`` (see :func:`output_point`)."""
+    """The state's part of the rigid-body point's covariance (3, 3) m^2: ``H P H^T`` (see
+    :func:`output_point`). The orientation's part is :func:`orientation_error_covariance`."""
     return H @ P @ H.T
+
+
+def orientation_error_variance(arm: NDArray[np.float64], angle_variance: ArrayLike
+                               ) -> NDArray[np.float64]:
+    """Per axis (..., 3) m^2: the diagonal of :func:`orientation_error_covariance`, for one
+    arm (3,) or rows of them (m, 3) with their angle variances (m,)::
+
+        sigma_theta^2 (|a|^2 - a_i^2)
+    (elementwise, in one order, so that a row and a batch of rows agree to the bit; exactly 0
+    where ``|a|^2 - a_i^2`` is 0, whatever the angle variance: no lever, no term)."""
+    a = np.asarray(arm, dtype=float)
+    squared = a[..., 0] * a[..., 0] + a[..., 1] * a[..., 1] + a[..., 2] * a[..., 2]
+    difference = squared[..., None] - a * a
+    variance = np.broadcast_to(np.asarray(angle_variance, dtype=float)[..., None],
+                               difference.shape)
+    return np.multiply(variance, difference, out=np.zeros(difference.shape),
+                       where=difference != 0.0)
+
+
+def orientation_error_covariance(arm: NDArray[np.float64], angle_variance: float
+                                 ) -> NDArray[np.float64]:
+    """The orientation's part (3, 3) m^2 of the rigid-body point's covariance.
+
+    The point is ``o = p - R_global_body l``: the IMU point p less the arm
+    ``a = R_global_body l = p - o`` (3,) m, global frame. R is not a state of the position
+    filter (the orientation tracker's); its error ``R_true = Exp(dtheta) R`` with per-axis
+    variance sigma_theta^2 (rad^2, :attr:`OrientationTracker.angle_variance`) moves the point
+    by ``-dtheta x a = a x dtheta``::
+
+        Cov = sigma_theta^2 [a x][a x]^T = sigma_theta^2 (|a|^2 I - a a^T)
+
+    Zero without a lever arm. The position fixes do not reduce it (they update p, not R), so
+    it is added to the output and left out of ``H P H^T``; the cross-covariance of p and
+    dtheta is left out (it is negative where measured: conservative)."""
+    x, y, z = (float(value) for value in arm)
+    if x == 0.0 and y == 0.0 and z == 0.0:
+        return np.zeros((3, 3))
+    squared = x * x + y * y + z * z  # the order of orientation_error_variance: the same bits
+    variance = float(angle_variance)
+
+    def term(difference: float) -> float:  # 0 where the arm leaves no term, whatever sigma^2
+        return variance * difference if difference != 0.0 else 0.0
+
+    xy, xz, yz = term(-(x * y)), term(-(x * z)), term(-(y * z))
+    return np.array([[term(squared - x * x), xy, xz],
+                     [xy, term(squared - y * y), yz],
+                     [xz, yz, term(squared - z * z)]])
+
+
+def output_arm(x: NDArray[np.float64], point: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The arm ``a = p - o`` (..., 3) m from the rigid-body point ``point`` (..., 3) to the
+    IMU point ``p`` of the state ``x`` (..., n): ``R_global_body l`` (zero without a lever)."""
+    return x[..., POSITION] - point
 
 
 def measurement_matrix(size: int = BASE_SIZE, R_global_body: ArrayLike | None = None,

@@ -58,10 +58,27 @@ from kfusion.conventions import (
 )
 
 __all__ = [
-    "OrientationState", "OrientationTracker", "Quaternion", "Vector", "conjugate",
+    "OrientationState", "OrientationTracker", "Quaternion", "Vector", "absorbed_rotation",
+    "conjugate",
     "matrix_from_quaternion", "normalise", "propagate_orientation_covariance",
     "quaternion_exp", "quaternion_log", "quaternion_product", "quaternion_step",
 ]
+
+
+def absorbed_rotation(rotation: Vector, gain_angle: float) -> Vector:
+    """The rotation (3,) rad that a gyroscope scale error still acts on after an orientation
+    fix of angle gain ``K_t`` (:meth:`OrientationTracker.correct`)::
+
+        r <- (1 - K_t) r
+
+    A scale and cross-axis error S is constant, so the angle error it builds, ``-S r``, is not
+    white: a fix removes the fraction ``K_t`` of it and the rest stays. Resetting r at every fix
+    counted ``S omega dt`` as a new independent increment each frame; with marker fits
+    (``K_t`` about 0.05) the tracker then claimed 1.8 mrad against 2-3.4 mrad of error under a
+    1 % scale error, and a lever of 8-15 cm carried that to the rigid-body point."""
+    keep = 1.0 - gain_angle
+    return (keep * rotation[0], keep * rotation[1], keep * rotation[2])
+
 
 def propagate_orientation_covariance(
     covariance: tuple[float, float, float],
@@ -198,22 +215,27 @@ class OrientationTracker:
 
         Signs: ``q_true = q_est ⊗ Exp(dtheta)`` and ``db_g = b_g,true - b_g,est``; the estimate
         turns at ``omega + db_g``, so ``dtheta' = -db_g`` and ``P_tb`` becomes negative, which
-        makes a lagging truth (negative innovation) raise the bias estimate. The scale-error
-        record restarts from this fix.
+        makes a lagging truth (negative innovation) raise the bias estimate.
+
+        The scale-error record keeps what the fix did not absorb (:func:`absorbed_rotation`):
+        ``r <- (1 - K_t) r`` and the peak restarts at ``scale_error^2 |r|^2``.
         """
         state = self.state
         innovation = quaternion_log(quaternion_product(conjugate(state.quaternion),
                                                        q_global_imu))
-        state.rotation_since_fix = (0.0, 0.0, 0.0)
-        state.scale_variance_peak = 0.0
         angle, cross, bias = state.covariance
         S = angle + (self.measurement_variance if measurement_variance is None
                      else measurement_variance)
         if S <= 0.0:
             # exact orientation and exact prediction: take the measurement as it is
+            state.rotation_since_fix = (0.0, 0.0, 0.0)
+            state.scale_variance_peak = 0.0
             state.quaternion = normalise(q_global_imu)
             return innovation
         gain_angle = angle / S
+        rx, ry, rz = absorbed_rotation(state.rotation_since_fix, gain_angle)
+        state.rotation_since_fix = (rx, ry, rz)
+        state.scale_variance_peak = self.scale_variance * (rx * rx + ry * ry + rz * rz)
         gain_bias = cross / S
         correction = (gain_angle * innovation[0], gain_angle * innovation[1],
                       gain_angle * innovation[2])

@@ -204,6 +204,17 @@ class _Reference:
                 c = -R_global_body @ self.lever
         return H, c
 
+    def arm(self, q_global_imu: tuple[float, float, float, float]) -> NDArray[np.float64]:
+        """``R_global_body l`` (3,) m: the lever arm in use in the global frame (zeros
+        without one)."""
+        if self.estimate_lever:
+            lever = self.x[LEVER]
+        elif self.lever is not None:
+            lever = self.lever
+        else:
+            return np.zeros(3)
+        return matrix_from_quaternion(q_global_imu) @ self.R_imu_body @ lever
+
     def fix(self, t: float, z: NDArray[np.float64] | None, q: NDArray[np.float64] | None
             ) -> tuple[str, float]:
         params = self.params
@@ -294,6 +305,13 @@ def reference_filter(recording: Recording, params: KalmanParameters) -> Referenc
             x[row], P[row] = filter_.x, filter_.P
             H, c = filter_.measurement(filter_.orientation.state.quaternion)
             position[row] = H @ filter_.x + c
-            std[row] = np.sqrt(np.diag(H @ filter_.P @ H.T))
+            # plus the orientation's error dtheta (per-axis variance sigma^2) times the arm
+            # a = R_global_body l: the point moves by a x dtheta = [a x] dtheta
+            arm = filter_.arm(filter_.orientation.state.quaternion)
+            cross = np.array([[0.0, -arm[2], arm[1]], [arm[2], 0.0, -arm[0]],
+                              [-arm[1], arm[0], 0.0]])
+            covariance = H @ filter_.P @ H.T + filter_.orientation.angle_variance * (
+                cross @ cross.T)
+            std[row] = np.sqrt(np.diag(covariance))
     return ReferenceRun(x=x, P=P, position=position, std=std, outcome=outcome.astype(str),
                         nis=nis)

@@ -64,6 +64,7 @@ from kfusion.kalman.batch import (
     measurement_engine,
     monitored_kernel_rows,
     monitored_output,
+    orientation_rows,
     point_estimates,
     position_covariances,
     process_recording,
@@ -592,10 +593,14 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     position, variance = (compiled_points(recorder) if replay is not None else
                           point_estimates(recorder.x, recorder.P, recorder.output_matrix,
                                           recorder.output_offset))
+    # the forward rows as run_filter reports them, with the orientation's error times the lever
+    orientation = orientation_rows(recorder.angle_variance, recorder.x, position)
     if watcher is not None:
         filtered_status, position, variance, _ = monitored_output(
             filtered_status, position, variance, recorder, since,
-            watcher.params.horizon_edges_s)
+            watcher.params.horizon_edges_s, orientation)
+    else:
+        variance = variance + orientation
     filtered = TrackResult(t=t, position=position, std=np.sqrt(variance),
                            status=filtered_status, time_since_fix=since, method="kalman")
     if replay is not None:
@@ -619,6 +624,9 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                           if replay is not None else
                           point_estimates(x_smoothed, P_smoothed, recorder.output_matrix,
                                           recorder.output_offset))
+    # the orientation is the forward filter's (not smoothed): its error times the lever, at
+    # the forward filter's angle variance, is part of every smoothed row below
+    variance = variance + orientation_rows(recorder.angle_variance, x_smoothed, position)
     if measurement == MARKERS:
         variance = partial_occlusion_floor(recording, variance, filtered_variance)
     report = None if watcher is None else watcher.report()
