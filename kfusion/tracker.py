@@ -468,14 +468,16 @@ class TrackerSnapshot:
     _state: Any = field(repr=False, compare=False)
 
 
-SNAPSHOT_FORMAT: Final = 7
+SNAPSHOT_FORMAT: Final = 8
 """Version of the state a :class:`TrackerSnapshot` holds (part of its configuration): raised
 whenever the estimator's or the monitor's state changes shape, so that a snapshot pickled by
 another version of kfusion is refused by :meth:`Tracker.restore` with a ValueError rather than
 restored and failing later (2: the monitor's sorted horizon rows and per-fix caches; 3: the
 time of the first fused frame, from which fixes test the model; 4: the running gap's peak
 variance and last frames; 5: the implausible_value rejection counter; 6: the test of the
-fixes before each occlusion; 7: the marker layout's residuals, ``KalmanSnapshot.layout``)."""
+fixes before each occlusion; 7: the marker layout's residuals, ``KalmanSnapshot.layout``; 8:
+the orientation innovations' mean, ``OrientationState.innovation_mean``, and the compiled
+engine's orientation array of ``ORIENTATION_SIZE``)."""
 
 _NUMERICAL_ERRORS: Final = (ArithmeticError, ValueError, np.linalg.LinAlgError)
 """What the estimator's maths may raise on overflowing numbers (math.sin(inf), singular S)."""

@@ -145,7 +145,10 @@ def test_fixes_while_the_innovations_are_too_large_are_widened_to_cover():
                 and report.nis.mean > report.nis.upper:
             scored += 1
             wrong += np.linalg.norm(estimate.position - truth[index]) > estimate.bound(0.99)
-    assert scored > 300
+    # (398 such rows before the orientation innovations' persistence test, 245 since: it
+    # widens the orientation's variance where the offset makes its innovations persist, and the
+    # windowed NIS of the position fixes then fails on fewer rows)
+    assert scored > 200
     assert wrong <= 0.05 * scored
 
 

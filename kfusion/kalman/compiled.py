@@ -18,9 +18,10 @@ form (:func:`position_update`); the general forms (:func:`covariance_predict`,
 State, in flat float arrays (numba compiles plain arrays best):
 
 * ``x`` (n,), ``P`` (n, n): the position filter, layout from :mod:`kfusion.kalman.layout`;
-* ``orientation`` (15,): ``q_global_imu`` [w, x, y, z] (0:4), gyroscope bias (4:7, rad/s),
-  covariance ``(P_tt, P_tb, P_bb)`` (7:10), rotation since the last fix (10:13, rad), scale
-  variance peak (13), initialised flag (14) (:class:`kfusion.kalman.orientation.OrientationState`);
+* ``orientation`` (:data:`ORIENTATION_SIZE`,): ``q_global_imu`` [w, x, y, z] (0:4), gyroscope
+  bias (4:7, rad/s), covariance ``(P_tt, P_tb, P_bb)`` (7:10), rotation since the last fix
+  (10:13, rad), scale variance peak (13), initialised flag (14), the innovations' mean (15:18)
+  (:class:`kfusion.kalman.orientation.OrientationState`);
 * ``scalars`` (:data:`SCALAR_COUNT`,): times, the held sample and flags; ``NaN`` stands for the
   reference filter's ``None``;
 * ``counters`` (:data:`COUNTER_NAMES` order) as int64.
@@ -49,6 +50,12 @@ from kfusion.kalman.filter import (
     REACQUIRED,
 )
 from kfusion.kalman.layout import layout_for
+from kfusion.kalman.orientation import (
+    MEAN_KEEP,
+    MEAN_NORMALISER,
+    MEAN_WEIGHT,
+    PERSISTENCE_LIMIT,
+)
 from kfusion.kalman.parameters import KalmanParameters
 
 OUTCOME_NAMES: Final = (ACCEPTED, OCCLUDED, GATED, REACQUIRED, INITIALISED)
@@ -63,6 +70,8 @@ LOW_PASS = 11  # low-passed specific force (3); NaN in LOW_PASS: none yet
 LAST_FIX, LAST_NIS, LAST_ORIENTATION_FIX, IMU_INTERVAL = 14, 15, 16, 17
 INITIALISED_FLAG, LAST_FRAME_FUSED, OUTAGE_SINCE_FIX = 18, 19, 20
 SCALAR_COUNT: Final = 21
+ORIENTATION_SIZE: Final = 18
+INNOVATION_MEAN = 15  # (3) orientation: OrientationState.innovation_mean
 
 # config: indices into the packed parameters
 (C_ACC_DENSITY, C_ACC_WALK, C_GYRO_DENSITY, C_GYRO_WALK, C_POSITION_NOISE,
@@ -139,7 +148,7 @@ def initial_scalars() -> NDArray[np.float64]:
 
 def initial_orientation() -> NDArray[np.float64]:
     """An uninitialised orientation state: identity quaternion, zero bias and covariance."""
-    orientation = np.zeros(15)
+    orientation = np.zeros(ORIENTATION_SIZE)
     orientation[0] = 1.0
     return orientation
 
@@ -618,7 +627,10 @@ def orientation_correct(orientation, q_measured, config):
     """Two-state Kalman correction per axis: ``S = P_tt + sigma_m^2``,
     ``K = [P_tt, P_tb] / S``, ``q <- q ⊗ Exp(K_t z)``, ``b_g <- b_g + K_b z``,
     ``P <- (I - K H) P``; the rotation a scale error acts on keeps ``(1 - K_t) r``
-    (:meth:`OrientationTracker.correct`, :func:`kfusion.kalman.orientation.absorbed_rotation`)."""
+    (:meth:`OrientationTracker.correct`, :func:`kfusion.kalman.orientation.absorbed_rotation`);
+    first the innovations' persistence test
+    (:func:`kfusion.kalman.orientation.persistent_innovations`), which scales the covariance by
+    ``T / 3`` beyond its limit."""
     innovation = quaternion_log(quaternion_product(conjugate(orientation[0:4]),
                                                    q_measured))
     angle, cross, bias = orientation[7], orientation[8], orientation[9]
@@ -627,6 +639,18 @@ def orientation_correct(orientation, q_measured, config):
         orientation[10:14] = 0.0
         orientation[0:4] = normalise(q_measured)
         return
+    root = math.sqrt(S)
+    mean = INNOVATION_MEAN
+    mx = MEAN_KEEP * orientation[mean] + MEAN_WEIGHT * (innovation[0] / root)
+    my = MEAN_KEEP * orientation[mean + 1] + MEAN_WEIGHT * (innovation[1] / root)
+    mz = MEAN_KEEP * orientation[mean + 2] + MEAN_WEIGHT * (innovation[2] / root)
+    statistic = (mx * mx + my * my + mz * mz) * MEAN_NORMALISER
+    if statistic > PERSISTENCE_LIMIT:
+        factor = statistic / 3.0
+        angle, cross, bias = factor * angle, factor * cross, factor * bias
+        S = angle + config[C_ORIENTATION_VARIANCE]
+        mx = my = mz = 0.0
+    orientation[mean], orientation[mean + 1], orientation[mean + 2] = mx, my, mz
     gain_angle = angle / S
     keep = 1.0 - gain_angle
     rx, ry, rz = keep * orientation[10], keep * orientation[11], keep * orientation[12]
@@ -1113,16 +1137,17 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
 
 def packed_size(n: int) -> int:
     """Length of a packed filter state with n states (:func:`state_views`)."""
-    return n + n * n + 15 + SCALAR_COUNT + n + n * n
+    return n + n * n + ORIENTATION_SIZE + SCALAR_COUNT + n + n * n
 
 
 @njit(cache=True)
 def state_views(state, n):
-    """Views ``(x (n,), P (n, n), orientation (15,), scalars, prior_x (n,), prior_P (n, n))``
+    """Views ``(x (n,), P (n, n), orientation (ORIENTATION_SIZE,), scalars, prior_x (n,),
+    prior_P (n, n))``
     into one packed state array (:func:`packed_size`): one argument per kernel call (numba
     unboxes each array argument on every call) and one copy per snapshot."""
     P_end = n + n * n
-    orientation_end = P_end + 15
+    orientation_end = P_end + ORIENTATION_SIZE
     scalars_end = orientation_end + SCALAR_COUNT
     return (state[0:n], state[n:P_end].reshape((n, n)), state[P_end:orientation_end],
             state[orientation_end:scalars_end], state[scalars_end:scalars_end + n],

@@ -213,7 +213,7 @@ class FilterEstimate:
         position: (3,) rigid-body point, m, global frame; NaN before the first fix.
         position_covariance: (3, 3) the state's part of its covariance ``H P H^T``, m^2
             (:func:`kfusion.kalman.model.output_covariance`).
-        std: (3,) 1-sigma of the position per axis, m.
+        std: (3,) 1-sigma per axis of ``position_covariance``, m.
         velocity: (3,) of the IMU point, m/s, global frame.
         bias: (3,) accelerometer bias, m/s^2, IMU frame.
         lever_arm: (3,) lever arm in use (estimated, given, or zeros), m, body frame.
