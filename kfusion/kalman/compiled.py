@@ -21,7 +21,7 @@ State, in flat float arrays (numba compiles plain arrays best):
 * ``orientation`` (:data:`ORIENTATION_SIZE`,): ``q_global_imu`` [w, x, y, z] (0:4), gyroscope
   bias (4:7, rad/s), covariance ``(P_tt, P_tb, P_bb)`` (7:10), rotation since the last fix
   (10:13, rad), scale variance peak (13), initialised flag (14), the innovations' mean (15:18)
-  (:class:`kfusion.kalman.orientation.OrientationState`);
+  and mean square (18) (:class:`kfusion.kalman.orientation.OrientationState`);
 * ``scalars`` (:data:`SCALAR_COUNT`,): times, the held sample and flags; ``NaN`` stands for the
   reference filter's ``None``;
 * ``counters`` (:data:`COUNTER_NAMES` order) as int64.
@@ -70,8 +70,8 @@ LOW_PASS = 11  # low-passed specific force (3); NaN in LOW_PASS: none yet
 LAST_FIX, LAST_NIS, LAST_ORIENTATION_FIX, IMU_INTERVAL = 14, 15, 16, 17
 INITIALISED_FLAG, LAST_FRAME_FUSED, OUTAGE_SINCE_FIX = 18, 19, 20
 SCALAR_COUNT: Final = 21
-ORIENTATION_SIZE: Final = 18
-INNOVATION_MEAN = 15  # (3) orientation: OrientationState.innovation_mean
+ORIENTATION_SIZE: Final = 19
+INNOVATION_MEAN, INNOVATION_SQUARE = 15, 18  # OrientationState.innovation_mean (3), _square
 
 # config: indices into the packed parameters
 (C_ACC_DENSITY, C_ACC_WALK, C_GYRO_DENSITY, C_GYRO_WALK, C_POSITION_NOISE,
@@ -150,6 +150,7 @@ def initial_orientation() -> NDArray[np.float64]:
     """An uninitialised orientation state: identity quaternion, zero bias and covariance."""
     orientation = np.zeros(ORIENTATION_SIZE)
     orientation[0] = 1.0
+    orientation[INNOVATION_SQUARE] = 3.0
     return orientation
 
 
@@ -641,16 +642,22 @@ def orientation_correct(orientation, q_measured, config):
         return
     root = math.sqrt(S)
     mean = INNOVATION_MEAN
-    mx = MEAN_KEEP * orientation[mean] + MEAN_WEIGHT * (innovation[0] / root)
-    my = MEAN_KEEP * orientation[mean + 1] + MEAN_WEIGHT * (innovation[1] / root)
-    mz = MEAN_KEEP * orientation[mean + 2] + MEAN_WEIGHT * (innovation[2] / root)
-    statistic = (mx * mx + my * my + mz * mz) * MEAN_NORMALISER
+    ux, uy, uz = innovation[0] / root, innovation[1] / root, innovation[2] / root
+    mx = MEAN_KEEP * orientation[mean] + MEAN_WEIGHT * ux
+    my = MEAN_KEEP * orientation[mean + 1] + MEAN_WEIGHT * uy
+    mz = MEAN_KEEP * orientation[mean + 2] + MEAN_WEIGHT * uz
+    square = MEAN_KEEP * orientation[INNOVATION_SQUARE] + MEAN_WEIGHT * (ux * ux + uy * uy
+                                                                         + uz * uz)
+    length = mx * mx + my * my + mz * mz
+    statistic = length * MEAN_NORMALISER / max((square - length) / 3.0, 1.0)
     if statistic > PERSISTENCE_LIMIT:
         factor = statistic / 3.0
         angle, cross, bias = factor * angle, factor * cross, factor * bias
         S = angle + config[C_ORIENTATION_VARIANCE]
         mx = my = mz = 0.0
+        square = 3.0
     orientation[mean], orientation[mean + 1], orientation[mean + 2] = mx, my, mz
+    orientation[INNOVATION_SQUARE] = square
     gain_angle = angle / S
     keep = 1.0 - gain_angle
     rx, ry, rz = keep * orientation[10], keep * orientation[11], keep * orientation[12]
@@ -690,6 +697,7 @@ def reset(x, P, orientation, scalars, counters):
     scalars[INITIALISED_FLAG] = 0.0
     orientation[:] = 0.0
     orientation[0] = 1.0
+    orientation[INNOVATION_SQUARE] = 3.0
     x[:] = 0.0
     P[:, :] = np.eye(x.shape[0])
     scalars[LAST_FIX] = math.nan
@@ -1073,6 +1081,7 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
             counters[8] += 1
             return _OCCLUDED, math.nan, False
         orientation[:] = 0.0
+        orientation[INNOVATION_SQUARE] = 3.0
         orientation[0:4] = normalise(q_global_imu)
         orientation[7] = config[C_ORIENTATION_VARIANCE]
         orientation[9] = config[C_INITIAL_GYRO_BIAS_VARIANCE]

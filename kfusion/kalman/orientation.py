@@ -80,24 +80,33 @@ PERSISTENCE_LIMIT: Final = 21.107513
 tests): a white innovation sequence crosses it about once in 10^4 fixes."""
 
 
-def persistent_innovations(mean: Vector, innovation: Vector, variance: float
-                           ) -> tuple[Vector, float]:
-    """The orientation innovations checked against the model: per axis ``z / sqrt(S)`` is white
-    with unit variance while the gyroscope's bias follows its random walk and its scale error
-    stays within the profile. Their exponential mean and its test statistic::
+def persistent_innovations(mean: Vector, square: float, innovation: Vector, variance: float
+                           ) -> tuple[Vector, float, float]:
+    """The orientation innovations checked against the model: per axis ``u = z / sqrt(S)`` is
+    white with unit variance while the gyroscope's bias follows its random walk and its scale
+    error stays within the profile. Their exponential mean, the mean of ``|u|^2``, and the test
+    statistic::
 
-        m <- lambda m + (1 - lambda) z / sqrt(S)        (lambda = 1 - 1 / PERSISTENCE_FIXES)
-        T  = |m|^2 (1 + lambda) / (1 - lambda)          (chi-square(3) for white innovations)
+        m <- lambda m + (1 - lambda) u                  (lambda = 1 - 1 / PERSISTENCE_FIXES)
+        q <- lambda q + (1 - lambda) |u|^2              (3 for the model: the start)
+        T  = |m|^2 (1 + lambda) / (1 - lambda) / max((q - |m|^2) / 3, 1)
 
-    A bias step or drift, or a scale error beyond the profile, makes the innovations persistent
-    (one sign for many fixes) well before any single one is large: with marker fits (8 mrad) and
-    a 0.06 rad/s step, each fix's innovation stayed within its S while the angle error reached 20
-    mrad, 83 times its variance. Returns the new mean and T."""
+    ``T`` is chi-square(3) for white innovations; the spread ``(q - |m|^2) / 3`` scales it down
+    where the innovations are white but noisier than the model (a mocap orientation noisier
+    than its profile: that is not a persistent error, and a covariance scaled for it made the
+    tilt follow the noise). A bias step or drift, or a scale error beyond the profile, makes
+    the innovations persistent (one sign for many fixes) well before any single one is large:
+    with marker fits (8 mrad) and a 0.06 rad/s step, each fix's innovation stayed within its S
+    while the angle error reached 20 mrad, 83 times its variance. Returns (m, q, T)."""
     root = math.sqrt(variance)
-    mx = MEAN_KEEP * mean[0] + MEAN_WEIGHT * (innovation[0] / root)
-    my = MEAN_KEEP * mean[1] + MEAN_WEIGHT * (innovation[1] / root)
-    mz = MEAN_KEEP * mean[2] + MEAN_WEIGHT * (innovation[2] / root)
-    return (mx, my, mz), (mx * mx + my * my + mz * mz) * MEAN_NORMALISER
+    ux, uy, uz = innovation[0] / root, innovation[1] / root, innovation[2] / root
+    mx = MEAN_KEEP * mean[0] + MEAN_WEIGHT * ux
+    my = MEAN_KEEP * mean[1] + MEAN_WEIGHT * uy
+    mz = MEAN_KEEP * mean[2] + MEAN_WEIGHT * uz
+    square = MEAN_KEEP * square + MEAN_WEIGHT * (ux * ux + uy * uy + uz * uz)
+    length = mx * mx + my * my + mz * mz
+    spread = max((square - length) / 3.0, 1.0)
+    return (mx, my, mz), square, length * MEAN_NORMALISER / spread
 
 
 def absorbed_rotation(rotation: Vector, gain_angle: float) -> Vector:
@@ -154,6 +163,7 @@ class OrientationState:
         scale_variance_peak: rad^2, the scale-error angle variance reached since then.
         innovation_mean: (3,) the exponential mean of the normalised innovations
             (:func:`persistent_innovations`), dimensionless.
+        innovation_square: the exponential mean of their squared norm (3 for the model).
         initialised: False until the first mocap orientation.
     """
 
@@ -163,6 +173,7 @@ class OrientationState:
     rotation_since_fix: Vector = (0.0, 0.0, 0.0)
     scale_variance_peak: float = 0.0
     innovation_mean: Vector = (0.0, 0.0, 0.0)
+    innovation_square: float = 3.0
     initialised: bool = False
 
     def copy(self) -> OrientationState:
@@ -277,14 +288,16 @@ class OrientationTracker:
             state.scale_variance_peak = 0.0
             state.quaternion = normalise(q_global_imu)
             return innovation
-        mean, statistic = persistent_innovations(state.innovation_mean, innovation, S)
+        mean, square, statistic = persistent_innovations(
+            state.innovation_mean, state.innovation_square, innovation, S)
         if statistic > PERSISTENCE_LIMIT:
             factor = statistic / 3.0
             angle, cross, bias = factor * angle, factor * cross, factor * bias
             S = angle + (self.measurement_variance if measurement_variance is None
                          else measurement_variance)
-            mean = (0.0, 0.0, 0.0)
+            mean, square = (0.0, 0.0, 0.0), 3.0
         state.innovation_mean = mean
+        state.innovation_square = square
         gain_angle = angle / S
         rx, ry, rz = absorbed_rotation(state.rotation_since_fix, gain_angle)
         state.rotation_since_fix = (rx, ry, rz)
