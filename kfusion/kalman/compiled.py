@@ -147,10 +147,9 @@ def initial_scalars() -> NDArray[np.float64]:
 
 
 def initial_orientation() -> NDArray[np.float64]:
-    """An uninitialised orientation state: identity quaternion, zero bias and covariance."""
-    orientation = np.zeros(ORIENTATION_SIZE)
-    orientation[0] = 1.0
-    orientation[INNOVATION_SQUARE] = 3.0
+    """An uninitialised orientation state (:func:`clear_orientation`)."""
+    orientation = np.empty(ORIENTATION_SIZE)
+    clear_orientation(orientation)
     return orientation
 
 
@@ -692,12 +691,20 @@ def state_finite(x, P, orientation):
 
 
 @njit(cache=True)
-def reset(x, P, orientation, scalars, counters):
-    """Forget position and orientation (``resets``): lost until the next fix."""
-    scalars[INITIALISED_FLAG] = 0.0
+def clear_orientation(orientation):
+    """An uninitialised orientation state, in place: identity quaternion, zero bias and
+    covariance, no rotation since a fix, the innovations' mean square at the model's 3
+    (:class:`kfusion.kalman.orientation.OrientationState`'s defaults)."""
     orientation[:] = 0.0
     orientation[0] = 1.0
     orientation[INNOVATION_SQUARE] = 3.0
+
+
+@njit(cache=True)
+def reset(x, P, orientation, scalars, counters):
+    """Forget position and orientation (``resets``): lost until the next fix."""
+    scalars[INITIALISED_FLAG] = 0.0
+    clear_orientation(orientation)
     x[:] = 0.0
     P[:, :] = np.eye(x.shape[0])
     scalars[LAST_FIX] = math.nan
@@ -1080,8 +1087,7 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
             counters[12] += 1
             counters[8] += 1
             return _OCCLUDED, math.nan, False
-        orientation[:] = 0.0
-        orientation[INNOVATION_SQUARE] = 3.0
+        clear_orientation(orientation)
         orientation[0:4] = normalise(q_global_imu)
         orientation[7] = config[C_ORIENTATION_VARIANCE]
         orientation[9] = config[C_INITIAL_GYRO_BIAS_VARIANCE]

@@ -280,8 +280,9 @@ class OrientationTracker:
         innovation = quaternion_log(quaternion_product(conjugate(state.quaternion),
                                                        q_global_imu))
         angle, cross, bias = state.covariance
-        S = angle + (self.measurement_variance if measurement_variance is None
-                     else measurement_variance)
+        noise = self.measurement_variance if measurement_variance is None \
+            else measurement_variance
+        S = angle + noise
         if S <= 0.0:
             # exact orientation and exact prediction: take the measurement as it is
             state.rotation_since_fix = (0.0, 0.0, 0.0)
@@ -293,8 +294,7 @@ class OrientationTracker:
         if statistic > PERSISTENCE_LIMIT:
             factor = statistic / 3.0
             angle, cross, bias = factor * angle, factor * cross, factor * bias
-            S = angle + (self.measurement_variance if measurement_variance is None
-                         else measurement_variance)
+            S = angle + noise
             mean, square = (0.0, 0.0, 0.0), 3.0
         state.innovation_mean = mean
         state.innovation_square = square
