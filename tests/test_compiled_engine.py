@@ -17,6 +17,7 @@ import pytest
 
 from kfusion.datasets import broad_excerpt
 from kfusion.kalman import run_filter, run_smoother
+from kfusion.monitor import MonitorParameters
 from kfusion.recording import ImuSamples, MocapFrames, Recording, read_recording
 from kfusion.simulate import OcclusionSpec, simulate
 
@@ -68,6 +69,17 @@ def corrupt_imu() -> Recording:
     return with_imu(recording, accelerometer)
 
 
+def knocked() -> Recording:
+    """Knocks on the IMU every 0.35 s or so (:func:`kfusion.simulate.faults.imu_knocks`):
+    impacts (``last_impact_t``) in gaps and before fixes, so the monitor keeps two classes of
+    shadow-gap rows."""
+    from kfusion.simulate import faults
+
+    streams = faults.imu_knocks(faults.Streams.of(simulated()), every_s=0.35, amplitude=150.0,
+                                frequency=120.0)
+    return streams.recording
+
+
 def reset_recording() -> Recording:
     """A mocap frame 1e120 s after the rest: the no-IMU propagation overflows (a reset), and
     the next frame initialises again."""
@@ -95,6 +107,7 @@ CASES = {
                                            "gyroscope_scale_error": 0.01,
                                            "gate_probability": None}),
     "broad_excerpt": (lambda: read_recording(broad_excerpt()), {}),
+    "knocks": (knocked, {}),
 }
 
 
@@ -126,6 +139,13 @@ def test_cases_exercise_their_branches() -> None:
     assert counters["reset"]["resets"] >= 1
     assert counters["reset"]["initialised"] >= 2  # re-initialised after each reset
     assert counters["gaps_lever_arm_states"]["occluded"] > 0
+    recording, overrides = knocked(), MONITOR_CASES["knocks_shrinking"][1]
+    knocks = run_filter(recording, engine="compiled", **overrides)
+    assert knocks.monitor is not None
+    assert np.isfinite(knocks.monitor.impact_variance_scale).any()
+    assert np.isfinite(knocks.monitor.variance_scale).any()  # both classes of shadow rows
+    pooled = run_filter(recording, engine="compiled", impact_jerk=math.inf, **overrides)
+    assert (knocks.variance_scale != pooled.variance_scale).any()  # the classes' scales differ
 
 
 def test_unknown_engine_is_refused() -> None:
@@ -501,7 +521,11 @@ def broken_clock() -> Recording:
         t=imu.t + 0.04, accelerometer=imu.accelerometer, gyroscope=imu.gyroscope))
 
 
-MONITOR_CASES = {**CASES, "broken_clock": (broken_clock, {})}
+# "knocks_shrinking": scales below 1 after a few gaps (the defaults keep 1 for a recording this
+# short), so the two classes of shadow rows give different bounds
+MONITOR_CASES = {**CASES, "broken_clock": (broken_clock, {}),
+                 "knocks_shrinking": (knocked, {"monitor": MonitorParameters(
+                     minimum_shadow_gaps=2, matching_quantile=0.9)})}
 
 
 @pytest.mark.parametrize("case", list(MONITOR_CASES))

@@ -75,6 +75,8 @@ class _Posterior:
     """The main filter as the monitor reads it: a real fusion's snapshots (the shadow gaps) and
     a given fused point and covariance (its estimate after the frame)."""
 
+    last_impact_t = -math.inf  # no knocks
+
     def __init__(self, fusion, position, covariance):
         self.fusion, self.position, self.covariance = fusion, position, covariance
 

@@ -69,7 +69,8 @@ ACCELEROMETER_EXTRA, GYROSCOPE_EXTRA = 9, 10
 LOW_PASS = 11  # low-passed specific force (3); NaN in LOW_PASS: none yet
 LAST_FIX, LAST_NIS, LAST_ORIENTATION_FIX, IMU_INTERVAL = 14, 15, 16, 17
 INITIALISED_FLAG, LAST_FRAME_FUSED, OUTAGE_SINCE_FIX = 18, 19, 20
-SCALAR_COUNT: Final = 21
+LAST_IMPACT = 21  # time of the last impact, s (-inf: none; KalmanFusion.last_impact_t)
+SCALAR_COUNT: Final = 22
 ORIENTATION_SIZE: Final = 19
 INNOVATION_MEAN, INNOVATION_SQUARE = 15, 18  # OrientationState.innovation_mean (3), _square
 
@@ -85,7 +86,8 @@ C_LEVER = 38  # (3) given lever arm
 C_LEVER_GIVEN = 41
 C_POSITION, C_VELOCITY, C_BIAS, C_LEVER_STATE = 42, 43, 44, 45  # layout block starts (-1: none)
 C_TIMESTAMP_JITTER = 46  # s, 1-sigma IMU stamp error (model.stamp_jitter_variance)
-CONFIG_SIZE: Final = 47
+C_IMPACT_JERK = 47  # m/s^3 (KalmanParameters.impact_jerk; model.is_impact)
+CONFIG_SIZE: Final = 48
 
 COUNTER_INDEX: Final = {name: index for index, name in enumerate(
     ("predictions", "imu_rejected", "imu_duplicates", "imu_dropouts", "imu_late",
@@ -123,6 +125,7 @@ def pack_config(params: KalmanParameters, q_body_imu: tuple[float, float, float,
     config[C_DROPOUT] = params.imu_dropout_s
     config[C_TILT_INFLATION] = params.tilt_error_inflation
     config[C_TIMESTAMP_JITTER] = params.timestamp_jitter
+    config[C_IMPACT_JERK] = params.impact_jerk
     config[C_GATING] = 1.0 if params.gating else 0.0
     config[C_Q_BODY_IMU:C_Q_BODY_IMU + 4] = q_body_imu
     config[C_R_IMU_BODY:C_R_IMU_BODY + 9] = np.asarray(R_imu_body, dtype=float).ravel()
@@ -143,6 +146,7 @@ def initial_scalars() -> NDArray[np.float64]:
     scalars = np.full(SCALAR_COUNT, np.nan)
     scalars[ACCELEROMETER_EXTRA] = scalars[GYROSCOPE_EXTRA] = 0.0
     scalars[INITIALISED_FLAG] = scalars[LAST_FRAME_FUSED] = scalars[OUTAGE_SINCE_FIX] = 0.0
+    scalars[LAST_IMPACT] = -math.inf
     return scalars
 
 
@@ -169,6 +173,7 @@ _LOW_PASS_TAU = model.LOW_PASS_TIME_CONSTANT
 _SCALE_COHERENCE = model.SCALE_ERROR_COHERENCE_S
 _motion_acceleration_variance = njit(cache=True)(model.motion_acceleration_variance)
 _stamp_jitter_variance = njit(cache=True)(model.stamp_jitter_variance)
+_is_impact = njit(cache=True)(model.is_impact)
 _SATURATION_FRACTION = model.SATURATION_FRACTION
 _IMPLAUSIBLE = model.IMPLAUSIBLE_SAMPLE
 
@@ -833,6 +838,8 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
         else:
             f1 = f0
             omega1 = omega0
+        if _is_impact(squared_distance(f0, f1), dt, config[C_IMPACT_JERK]):
+            scalars[LAST_IMPACT] = t
         rotation_into(orientation[0:4], R0)
         angle_variance = orientation[7]
         orientation_propagate(orientation, omega0, omega1, dt,
@@ -1248,8 +1255,9 @@ def initial_state(n: int) -> NDArray[np.float64]:
 def filter_events(stream, index, begin, end, imu_t, accelerometer, gyroscope, imu_finite,
                   mocap_t, mocap_position, mocap_quaternion, visible, config, state, counters,
                   row_offset, out_x, out_P, out_H, out_offset, out_outcome, out_nis,
-                  out_y, out_S, out_dead_reckoned, out_angle_variance, out_x_predicted,
-                  out_P_predicted, out_transition, save_every, saved_states, saved_events):
+                  out_y, out_S, out_dead_reckoned, out_angle_variance, out_last_impact,
+                  out_x_predicted, out_P_predicted, out_transition, save_every, saved_states,
+                  saved_events):
     """The batch loop over merged events ``begin`` to ``end`` - 1 (stream 0 IMU, 1 mocap; index
     its row) from the packed ``state`` (:func:`state_views`, updated in place). Fills one row
     of the outputs per mocap row (row ``r`` at ``r - row_offset``). Returns -1, or the event
@@ -1303,6 +1311,8 @@ pass runs the loop again from there (:func:`smooth_rows`)."""
             out_y[out] = y
             out_S[out] = S
         out_dead_reckoned[out] = t <= dead_reckoning_until(scalars, config)
+        if out_last_impact.shape[0] > 0:  # KalmanFusion.last_impact_t after the frame
+            out_last_impact[out] = scalars[LAST_IMPACT]
         if scalars[INITIALISED_FLAG] != 0.0:
             out_x[out] = x
             out_P[out] = P
@@ -1380,8 +1390,8 @@ def smooth_rows(stream, index, row_event, imu_t, accelerometer, gyroscope, imu_f
                       visible, config, state, counters, first_row, scratch_x, scratch_P,
                       scratch_H, scratch_offset, scratch_outcome, scratch_nis,
                       no_innovations, no_innovation_covariances, scratch_dead_reckoned,
-                      np.zeros(0), x_predicted, P_predicted, transitions, 0, no_states,
-                      no_events)
+                      np.zeros(0), np.zeros(0), x_predicted, P_predicted, transitions, 0,
+                      no_states, no_events)
         for k in range(last_row - 1, first_row - 2, -1):
             if k < 0 or segment[k] < 0 or segment[k + 1] != segment[k]:
                 continue
@@ -1465,7 +1475,8 @@ class KernelRun:
                  dead_reckoned: NDArray[np.bool_], counters: dict[str, int],
                  failed_event: int, y: NDArray[np.float64] | None = None,
                  S: NDArray[np.float64] | None = None,
-                 angle_variance: NDArray[np.float64] | None = None) -> None:
+                 angle_variance: NDArray[np.float64] | None = None,
+                 last_impact: NDArray[np.float64] | None = None) -> None:
         self.x = x
         self.P = P
         self.output_matrix = output_matrix
@@ -1484,6 +1495,10 @@ class KernelRun:
         # variance)
         self.angle_variance = np.full(len(nis), np.nan) if angle_variance is None \
             else angle_variance
+        # per row, the time of the last impact (m,) s after the row's frame (-inf: none;
+        # KalmanFusion.last_impact_t), which the consistency monitor reads
+        self.last_impact = np.full(len(nis), -math.inf) if last_impact is None \
+            else last_impact
         # smoother support (run_kernel(smoothing=True)): the kernel inputs, configuration,
         # first state and the states saved every SAVE_EVERY rows, for smooth_in_place
         self.replay: Replay | None = None
@@ -1559,6 +1574,7 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     out_S = np.full((rows, 3, 3), np.nan)
     out_dead_reckoned = np.zeros(rows, dtype=bool)
     out_angle_variance = np.full(rows, np.nan)
+    out_last_impact = np.full(rows, -math.inf)
     counters = np.zeros(len(COUNTER_INDEX), dtype=np.int64)
     no_rows = np.zeros((0, size, size))
     first_state = initial_state(size)
@@ -1570,11 +1586,11 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     failed = filter_events(  # type: ignore[call-arg]
         inputs[0], inputs[1], 0, len(stream), *inputs[2:], config, state, counters, 0, out_x,
         out_P, out_H, out_offset, out_outcome, out_nis, out_y, out_S, out_dead_reckoned,
-        out_angle_variance, np.zeros((0, size)), no_rows, no_rows, save_every, saved_states,
-        saved_events)
+        out_angle_variance, out_last_impact, np.zeros((0, size)), no_rows, no_rows, save_every,
+        saved_states, saved_events)
     run = KernelRun(out_x, out_P, out_H, out_offset, _OUTCOME_LOOKUP[out_outcome], out_nis,
                     out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(), strict=True)),
-                    int(failed), out_y, out_S, out_angle_variance)
+                    int(failed), out_y, out_S, out_angle_variance, out_last_impact)
     if save_every > 0:
         run.replay = Replay(inputs, config, first_state, saved_states)
         run.replay.saved_events = saved_events
@@ -1627,8 +1643,8 @@ class Checkpoints:
             inputs[0], inputs[1], begin, end, *inputs[2:9], visible, self.replay.config,
             state, self.counters, first_row, out_x, out_P, out_H, out_offset,
             np.full(rows, -1, dtype=np.int64), np.full(rows, np.nan), np.zeros((0, 3)),
-            np.zeros((0, 3, 3)), np.zeros(rows, dtype=bool), np.zeros(0), np.zeros((0, n)),
-            no_rows, no_rows, 0,
+            np.zeros((0, 3, 3)), np.zeros(rows, dtype=bool), np.zeros(0), np.zeros(0),
+            np.zeros((0, n)), no_rows, no_rows, 0,
             np.zeros((0, len(state))), np.zeros(0, dtype=np.int64))
         if failed >= 0:
             raise RuntimeError(f"replay of events {begin}..{end}: the kernel stopped at "

@@ -230,6 +230,11 @@ class CompiledFusion:
             quaternion, P, status, since, last_nis, orientation_covariance)
 
     @property
+    def last_impact_t(self) -> float:
+        """:attr:`KalmanFusion.last_impact_t`: the time of the last impact, s (-inf: none)."""
+        return float(self._scalars[compiled.LAST_IMPACT])
+
+    @property
     def angle_variance(self) -> float:
         """:attr:`KalmanFusion.angle_variance`: the orientation's angle variance now, rad^2."""
         return float(self._orientation[7])

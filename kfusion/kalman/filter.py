@@ -271,6 +271,7 @@ class KalmanSnapshot:
     last_frame_fused: bool = False
     frames_on_gyroscope: int = 0
     layout: LayoutResiduals | None = None
+    last_impact_t: float = -math.inf
 
 
 def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
@@ -415,6 +416,7 @@ class KalmanFusion:
         # the marker layout's residuals so far (kfusion.kalman.marker_layout; None before a
         # marker frame)
         self._layout: LayoutResiduals | None = None
+        self._last_impact = -math.inf  # last_impact_t
         self._counters = dict.fromkeys(COUNTER_NAMES, 0)
         # smoother support (see kfusion.kalman.smoother): product of the transitions since the
         # smoother last reset it, and the prior of the last fused fix
@@ -641,6 +643,13 @@ class KalmanFusion:
             np.asarray(quaternion), P, status, since, self._last_nis, orientation_covariance)
 
     @property
+    def last_impact_t(self) -> float:
+        """Time (s, mocap clock) of the end of the last IMU interval that was an impact
+        (:func:`kfusion.kalman.model.is_impact` with ``params.impact_jerk``), -inf before one.
+        It describes the IMU stream, so a reset keeps it."""
+        return self._last_impact
+
+    @property
     def angle_variance(self) -> float:
         """The orientation tracker's per-axis angle variance now, rad^2 (the orientation's part
         of the output: :attr:`FilterEstimate.orientation_covariance`)."""
@@ -689,6 +698,7 @@ class KalmanFusion:
             last_frame_fused=self._last_frame_fused,
             frames_on_gyroscope=self._frames_on_gyroscope,
             layout=self._layout,
+            last_impact_t=self._last_impact,
         )
 
     def restore(self, snapshot: KalmanSnapshot) -> None:
@@ -721,6 +731,7 @@ class KalmanFusion:
         self._last_frame_fused = snapshot.last_frame_fused
         self._frames_on_gyroscope = snapshot.frames_on_gyroscope
         self._layout = snapshot.layout
+        self._last_impact = snapshot.last_impact_t
 
     # ------------------------------------------------------------------ internals
 
@@ -844,6 +855,8 @@ class KalmanFusion:
         orientation = self._orientation
         if self._accelerometer is not None and orientation.state.initialised:
             f0, f1, omega0, omega1 = self._interval_ends(t, f_end, omega_end)
+            if model.is_impact(_squared_distance(f0, f1), dt, self.params.impact_jerk):
+                self._last_impact = t
             R0 = self._R_current if self._R_current is not None else orientation.matrix()
             angle_variance = orientation.angle_variance
             orientation.propagate(omega0, omega1, dt, self._gyroscope_extra_variance * dt * dt)

@@ -408,6 +408,23 @@ def stamp_jitter_variance(change_squared: float, dt: float, timestamp_jitter: fl
     return timestamp_jitter * timestamp_jitter * change_squared / (dt * dt)
 
 
+def is_impact(change_squared: float, dt: float, impact_jerk: float) -> bool:
+    """True when an IMU interval of dt (s) whose specific force changes by
+    ``sqrt(change_squared)`` (m/s^2) is an impact: its rate of change beyond ``impact_jerk``
+    (m/s^3; :attr:`kfusion.kalman.KalmanParameters.impact_jerk`)::
+
+        |f1 - f0|^2 > impact_jerk^2 dt^2
+
+    An interval split by a mocap frame has the same rate in both parts (the force is linear
+    between samples). False for dt <= 0 and for an infinite ``impact_jerk``. Plain float
+    arithmetic, so that the compiled engine compiles this same function.
+    """
+    if dt <= 0.0 or impact_jerk == math.inf:
+        return False
+    limit = impact_jerk * dt
+    return change_squared > limit * limit
+
+
 def timestamp_jitter(t: NDArray[np.float64]) -> float:
     """1-sigma random error (s) of a stream's timestamps t (n,) s, measured from the scatter of
     its sample intervals around their median.

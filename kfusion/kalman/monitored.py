@@ -67,12 +67,19 @@ class MainAtRow:
     """The main filter as the monitor reads it (:meth:`snapshot`) after the frame of ``row``."""
 
     def __init__(self, checkpoints: compiled.Checkpoints, configuration: tuple[float, ...],
-                 row_event: list[int], reader: CompiledFusion) -> None:
+                 row_event: list[int], reader: CompiledFusion,
+                 last_impact: list[float]) -> None:
         self.checkpoints = checkpoints
         self.reader = reader
         self.configuration = configuration
         self.row_event = row_event
+        self.last_impacts = last_impact  # per row (KernelRun.last_impact)
         self.row = -1
+
+    @property
+    def last_impact_t(self) -> float:
+        """:attr:`KalmanFusion.last_impact_t` after the frame of ``row``."""
+        return self.last_impacts[self.row]
 
     def snapshot(self) -> RowSnapshot:
         state = self.checkpoints.state_before(self.row_event[self.row] + 1)
@@ -196,7 +203,7 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
     monitor = ConsistencyMonitor(cast(KalmanFusion, shadow), settings, info.gravity)
     configuration = tuple(config.tolist())
     before = CompiledFusion(info.imu_to_body, info.gravity, params, lever_arm=info.lever_arm)
-    main = MainAtRow(checkpoints, configuration, events, before)
+    main = MainAtRow(checkpoints, configuration, events, before, run.last_impact.tolist())
     recorder = recorder_class.from_kernel(reference, run)
     recorder.monitor = monitor
     recorder.scale_tables = np.ones((len(times), len(settings.horizon_edges_s)))

@@ -102,6 +102,15 @@ class KalmanParameters:
             (:func:`kfusion.kalman.model.stamp_jitter_variance`). The batch runs measure it from
             the recording's own IMU intervals (:func:`kfusion.kalman.model.timestamp_jitter`)
             unless the caller gives it; 0 for a clock that stamps on the sample instant.
+        impact_jerk: m/s^3, > 0 (``math.inf``: never). An IMU interval whose specific force
+            changes faster than this (``|f1 - f0| / dt``) is an impact: a tap or a knock, which
+            the samples cannot resolve. The filter keeps the time of the last one
+            (:attr:`kfusion.kalman.KalmanFusion.last_impact_t`); the consistency monitor
+            learns its scales for gaps near impacts apart from the others
+            (:class:`kfusion.monitor.MonitorParameters`, ``impact_memory_s``). 1000 m/s^3
+            (about 100 g/s) is above the voluntary arm motion of BROAD's undisturbed trials
+            (their 99.9th percentile is 270-1160 m/s^3, the simulated scenarios' largest 160)
+            and below its tapping trial's knocks (1.7 % of its samples, up to 80 000 m/s^3).
     """
 
     accelerometer_noise_density: float
@@ -127,6 +136,7 @@ class KalmanParameters:
     tilt_error_inflation: float = 1.0
     marker_position_noise: float = 0.5e-3
     timestamp_jitter: float = 0.0
+    impact_jerk: float = 1000.0
 
     def __post_init__(self) -> None:
         non_negative = (
@@ -143,14 +153,15 @@ class KalmanParameters:
         # never inverted.
         positive = ("accelerometer_noise_density", "accelerometer_bias_random_walk",
                     "mocap_position_noise", "initial_velocity_std", "accelerometer_range",
-                    "gyroscope_range", "max_bridge_s", "imu_dropout_s", "marker_position_noise")
+                    "gyroscope_range", "max_bridge_s", "imu_dropout_s", "marker_position_noise",
+                    "impact_jerk")
         for name in non_negative + positive + ("imu_latency_s",):
             value = getattr(self, name)
             number = real_number(value)
             if number is None:
                 raise ValueError(f"KalmanParameters.{name}: expected a number, "
                                  f"got {short_repr(value)}")
-            infinite_allowed = name.endswith("_range")
+            infinite_allowed = name.endswith("_range") or name == "impact_jerk"
             if math.isnan(number) or (math.isinf(number) and not infinite_allowed):
                 raise ValueError(f"KalmanParameters.{name}: expected a finite number, "
                                  f"got {short_repr(value)}")

@@ -120,6 +120,47 @@ def imu_rate_drops(streams: Streams, keep_every: int = 8, fraction: float = 0.5)
     return _imu(streams, ~late | (index % keep_every == 0))
 
 
+def imu_knocks(streams: Streams, every_s: float = 0.7, amplitude: float = 60.0,
+               frequency: float = 90.0, duration_s: float = 0.04, seed: int = 0) -> Streams:
+    """Knocks on the IMU (taps on its housing, or on the table under the arm) about every
+    ``every_s`` s (0.5 to 1.5 times it, at a random phase of the sampling): the housing rings
+    against the body, along a random direction, with the displacement::
+
+        d(t) = D sin(2 pi f t) sin^2(pi t / T),   0 <= t <= T,   D = amplitude / (2 pi f)^2
+
+    (f = ``frequency`` Hz, T = ``duration_s`` s; ``amplitude`` m/s^2 is about the peak of
+    ``d''``), and the accelerometer reads ``d''(t)`` on top of the arm's motion. The housing
+    ends where it started, at rest: the mocap and the truth are unchanged, and the ringing
+    integrates to no velocity. What its samples integrate to is an error: at 100-300 Hz
+    without an anti-aliasing filter they do not catch the ringing's shape. BROAD's tapping
+    trial has knocks of this size (up to 150 m/s^2 from one sample to the next)."""
+    imu = streams.recording.imu
+    rng = np.random.default_rng(seed)
+    t = np.asarray(imu.t, dtype=float)
+    accelerometer = np.array(imu.accelerometer, dtype=float)
+    omega = 2.0 * np.pi * frequency
+    window = np.pi / duration_s
+    size = amplitude / (omega * omega)
+    start = float(t[0]) + rng.uniform(0.0, every_s)
+    while start < t[-1]:
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        since = t - start
+        inside = (since >= 0.0) & (since <= duration_s)
+        u = since[inside]
+        # d'' = D (s'' h + 2 s' h' + s h''), s = sin(omega u), h = sin^2(window u)
+        s, ds, dds = np.sin(omega * u), omega * np.cos(omega * u), -omega ** 2 * np.sin(omega * u)
+        h = np.sin(window * u) ** 2
+        dh = window * np.sin(2.0 * window * u)
+        ddh = 2.0 * window ** 2 * np.cos(2.0 * window * u)
+        accelerometer[inside] += (size * (dds * h + 2.0 * ds * dh + s * ddh))[:, None] \
+            * direction
+        start += every_s * rng.uniform(0.5, 1.5)
+    samples = ImuSamples(t, accelerometer, imu.gyroscope)
+    return Streams(dataclasses.replace(streams.recording, imu=samples), streams.imu_arrival,
+                   streams.mocap_arrival)
+
+
 def imu_clock_offset(streams: Streams, offset_s: float) -> Streams:
     """IMU stamps ``offset_s`` s off the mocap clock (``stamp = true time + offset_s``; negative:
     the IMU clock is behind); samples still arrive in real time."""
