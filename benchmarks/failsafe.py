@@ -361,6 +361,7 @@ FAULTS: list[tuple[str, Fault, str]] = [
      lambda s: faults.occlusion_edge_offsets(s, 0.004, 10, "after"), "sim"),
     ("mocap repeats the last pose through occlusions", faults.mocap_holds_last_pose, "sim"),
     ("IMU rate 8x lower from halfway, no anti-aliasing", faults.imu_rate_drops, "sim"),
+    ("knocks on the IMU housing about every 0.7 s", faults.imu_knocks, "sim"),
     ("IMU clock 5 ms behind", lambda s: faults.imu_clock_offset(s, -0.005), "sim"),
     ("IMU clock 5 ms ahead", lambda s: faults.imu_clock_offset(s, 0.005), "sim"),
     ("IMU clock 10 ms behind", lambda s: faults.imu_clock_offset(s, -0.010), "sim"),

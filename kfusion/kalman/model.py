@@ -425,6 +425,24 @@ def is_impact(change_squared: float, dt: float, impact_jerk: float) -> bool:
     return change_squared > limit * limit
 
 
+def impact_times(t: ArrayLike, accelerometer: ArrayLike, impact_jerk: float
+                 ) -> NDArray[np.float64]:
+    """Times (k,) s of the ends of the IMU intervals that are impacts (:func:`is_impact`),
+    from samples at t (n,) s (on the clock the caller fuses on) with specific forces
+    ``accelerometer`` (n, 3) m/s^2: the offline form of what the filter marks as it predicts
+    (:attr:`kfusion.kalman.KalmanFusion.last_impact_t`; the filter's intervals are split at
+    mocap frames, with the same rate of change in each part). Empty for an infinite
+    ``impact_jerk`` or fewer than two samples; an interval with a NaN is no impact."""
+    times = np.asarray(t, dtype=float)
+    force = np.asarray(accelerometer, dtype=float)
+    if len(times) < 2 or impact_jerk == math.inf:
+        return np.empty(0)
+    dt = np.diff(times)
+    change_squared = np.sum(np.diff(force, axis=0) ** 2, axis=1)
+    limit = impact_jerk * dt
+    return times[1:][(dt > 0.0) & (change_squared > limit * limit)]
+
+
 def timestamp_jitter(t: NDArray[np.float64]) -> float:
     """1-sigma random error (s) of a stream's timestamps t (n,) s, measured from the scatter of
     its sample intervals around their median.
