@@ -25,11 +25,16 @@ R99 = math.sqrt(chi2_quantile(0.99, 3))
 
 def test_is_impact_by_hand() -> None:
     # 1000 m/s^3 over a 5 ms interval: the specific force may change by 5 m/s^2
-    assert model.is_impact(5.01 ** 2, 0.005, 1000.0)
-    assert not model.is_impact(4.99 ** 2, 0.005, 1000.0)
-    assert not model.is_impact(25.0, 0.005, 1000.0)  # exactly at the limit: not beyond
-    assert not model.is_impact(1e6, 0.0, 1000.0)  # no interval
-    assert not model.is_impact(1e300, 0.005, math.inf)  # switched off
+    assert model.is_impact(5.01 ** 2, 0.005, 1000.0, 0.0)
+    assert not model.is_impact(4.99 ** 2, 0.005, 1000.0, 0.0)
+    assert not model.is_impact(25.0, 0.005, 1000.0, 0.0)  # exactly at the limit: not beyond
+    assert not model.is_impact(1e6, 0.0, 1000.0, 0.0)  # no interval
+    assert not model.is_impact(1e300, 0.005, math.inf, 0.0)  # switched off
+    # noise of 0.01 (m/s^2)^2 per sample explains 2 * 11.34 * 0.01 = 0.2269 of the change^2
+    noise = 0.01
+    allowance = 2.0 * model.NOISE_CHANGE_QUANTILE * noise
+    assert model.is_impact(25.0 + allowance + 1e-9, 0.005, 1000.0, noise)
+    assert not model.is_impact(25.0 + allowance - 1e-9, 0.005, 1000.0, noise)
 
 
 def test_impact_times_by_hand() -> None:
@@ -38,10 +43,14 @@ def test_impact_times_by_hand() -> None:
     force[2] = [0.0, 6.0, 8.0]  # 10 m/s^2 in 10 ms: 1000 m/s^3, not beyond
     force[3] = [0.0, -6.0, -8.0]  # 20 m/s^2 in 10 ms: beyond; then a repeated stamp
     force[5] = [np.nan, 0.0, 0.0]
-    np.testing.assert_array_equal(model.impact_times(t, force, 1000.0), [0.03])
-    np.testing.assert_array_equal(model.impact_times(t, force, 900.0), [0.02, 0.03])
-    assert model.impact_times(t, force, math.inf).size == 0
-    assert model.impact_times(t[:1], force[:1], 1000.0).size == 0
+    np.testing.assert_array_equal(model.impact_times(t, force, 1000.0, 0.0), [0.03])
+    np.testing.assert_array_equal(model.impact_times(t, force, 900.0, 0.0), [0.02, 0.03])
+    # a density whose noise explains 2 * 11.34 * density^2 / 0.01 = 50 (m/s^2)^2 of each
+    # interval's change^2: 100 - 50 > 81 no longer holds for the first
+    density = math.sqrt(50.0 * 0.01 / (2.0 * model.NOISE_CHANGE_QUANTILE))
+    np.testing.assert_array_equal(model.impact_times(t, force, 900.0, density), [0.03])
+    assert model.impact_times(t, force, math.inf, 0.0).size == 0
+    assert model.impact_times(t[:1], force[:1], 1000.0, 0.0).size == 0
 
 
 def test_near_impact_rows_by_hand() -> None:

@@ -838,7 +838,8 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
         else:
             f1 = f0
             omega1 = omega0
-        if _is_impact(squared_distance(f0, f1), dt, config[C_IMPACT_JERK]):
+        if _is_impact(squared_distance(f0, f1), dt, config[C_IMPACT_JERK],
+                      config[C_ACC_DENSITY] ** 2 / dt):
             scalars[LAST_IMPACT] = t
         rotation_into(orientation[0:4], R0)
         angle_variance = orientation[7]

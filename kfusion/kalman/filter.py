@@ -855,7 +855,8 @@ class KalmanFusion:
         orientation = self._orientation
         if self._accelerometer is not None and orientation.state.initialised:
             f0, f1, omega0, omega1 = self._interval_ends(t, f_end, omega_end)
-            if model.is_impact(_squared_distance(f0, f1), dt, self.params.impact_jerk):
+            if model.is_impact(_squared_distance(f0, f1), dt, self.params.impact_jerk,
+                               self.params.accelerometer_noise_density ** 2 / dt):
                 self._last_impact = t
             R0 = self._R_current if self._R_current is not None else orientation.matrix()
             angle_variance = orientation.angle_variance

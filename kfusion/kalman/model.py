@@ -408,41 +408,6 @@ def stamp_jitter_variance(change_squared: float, dt: float, timestamp_jitter: fl
     return timestamp_jitter * timestamp_jitter * change_squared / (dt * dt)
 
 
-def is_impact(change_squared: float, dt: float, impact_jerk: float) -> bool:
-    """True when an IMU interval of dt (s) whose specific force changes by
-    ``sqrt(change_squared)`` (m/s^2) is an impact: its rate of change beyond ``impact_jerk``
-    (m/s^3; :attr:`kfusion.kalman.KalmanParameters.impact_jerk`)::
-
-        |f1 - f0|^2 > impact_jerk^2 dt^2
-
-    An interval split by a mocap frame has the same rate in both parts (the force is linear
-    between samples). False for dt <= 0 and for an infinite ``impact_jerk``. Plain float
-    arithmetic, so that the compiled engine compiles this same function.
-    """
-    if dt <= 0.0 or impact_jerk == math.inf:
-        return False
-    limit = impact_jerk * dt
-    return change_squared > limit * limit
-
-
-def impact_times(t: ArrayLike, accelerometer: ArrayLike, impact_jerk: float
-                 ) -> NDArray[np.float64]:
-    """Times (k,) s of the ends of the IMU intervals that are impacts (:func:`is_impact`),
-    from samples at t (n,) s (on the clock the caller fuses on) with specific forces
-    ``accelerometer`` (n, 3) m/s^2: the offline form of what the filter marks as it predicts
-    (:attr:`kfusion.kalman.KalmanFusion.last_impact_t`; the filter's intervals are split at
-    mocap frames, with the same rate of change in each part). Empty for an infinite
-    ``impact_jerk`` or fewer than two samples; an interval with a NaN is no impact."""
-    times = np.asarray(t, dtype=float)
-    force = np.asarray(accelerometer, dtype=float)
-    if len(times) < 2 or impact_jerk == math.inf:
-        return np.empty(0)
-    dt = np.diff(times)
-    change_squared = np.sum(np.diff(force, axis=0) ** 2, axis=1)
-    limit = impact_jerk * dt
-    return times[1:][(dt > 0.0) & (change_squared > limit * limit)]
-
-
 def timestamp_jitter(t: NDArray[np.float64]) -> float:
     """1-sigma random error (s) of a stream's timestamps t (n,) s, measured from the scatter of
     its sample intervals around their median.
@@ -487,6 +452,51 @@ def interpolation_variance(change_squared: float, noise_variance: float) -> floa
     bias; on smooth motion it is negligible.
     """
     return max(change_squared - 2.0 * NOISE_CHANGE_QUANTILE * noise_variance, 0.0) / 36.0
+
+
+def is_impact(change_squared: float, dt: float, impact_jerk: float,
+              noise_variance: float) -> bool:
+    """True when an IMU interval of dt (s) whose specific force changes by
+    ``sqrt(change_squared)`` (m/s^2) is an impact: the change beyond what the sensor's white
+    noise explains (as in :func:`interpolation_variance`: ``noise_variance`` per sample and
+    axis, (m/s^2)^2) is faster than ``impact_jerk`` (m/s^3;
+    :attr:`kfusion.kalman.KalmanParameters.impact_jerk`)::
+
+        |f1 - f0|^2 - 2 * 11.34 noise_variance > impact_jerk^2 dt^2
+
+    (noise alone grows the change as ``1 / sqrt(dt)``: a fast IMU's noise would otherwise read
+    as knocks). An interval split by a mocap frame has the same rate of change in both parts
+    (the force is linear between samples). False for dt <= 0 and for an infinite
+    ``impact_jerk``. Plain float arithmetic, so that the compiled engine compiles this same
+    function.
+    """
+    if dt <= 0.0 or impact_jerk == math.inf:
+        return False
+    limit = impact_jerk * dt
+    return change_squared - 2.0 * NOISE_CHANGE_QUANTILE * noise_variance > limit * limit
+
+
+def impact_times(t: ArrayLike, accelerometer: ArrayLike, impact_jerk: float,
+                 noise_density: float) -> NDArray[np.float64]:
+    """Times (k,) s of the ends of the IMU intervals that are impacts (:func:`is_impact`),
+    from samples at t (n,) s (on the clock the caller fuses on) with specific forces
+    ``accelerometer`` (n, 3) m/s^2 and white noise of density ``noise_density``
+    (m/s^2/sqrt(Hz): ``noise_density^2 / dt`` per sample): the offline form of what the
+    filter marks as it predicts (:attr:`kfusion.kalman.KalmanFusion.last_impact_t`; the
+    filter's intervals are split at mocap frames, with the same rate of change in each
+    part). Empty for an infinite ``impact_jerk`` or fewer than two samples; an interval with
+    a NaN is no impact."""
+    times = np.asarray(t, dtype=float)
+    force = np.asarray(accelerometer, dtype=float)
+    if len(times) < 2 or impact_jerk == math.inf:
+        return np.empty(0)
+    dt = np.diff(times)
+    change_squared = np.sum(np.diff(force, axis=0) ** 2, axis=1)
+    limit = impact_jerk * dt
+    with np.errstate(divide="ignore", invalid="ignore"):
+        noise_variance = noise_density * noise_density / dt
+        beyond = change_squared - 2.0 * NOISE_CHANGE_QUANTILE * noise_variance > limit * limit
+    return times[1:][(dt > 0.0) & beyond]
 
 
 LOW_PASS_TIME_CONSTANT = 0.1

@@ -224,7 +224,7 @@ def recording_impacts(recording: Recording, params: KalmanParameters) -> NDArray
     impact_times`."""
     imu = on_mocap_clock(recording).imu
     return model.impact_times(imu.t - params.imu_latency_s, imu.accelerometer,
-                              params.impact_jerk)
+                              params.impact_jerk, params.accelerometer_noise_density)
 
 
 def contested_fixes(outcome: NDArray[np.str_]) -> NDArray[np.bool_]:
