@@ -73,7 +73,7 @@ def test_the_hold_out_keeps_its_own_refusal_limit():
                       gap_range=(0.1, 0.3))
     run = run_smoother(gapped.recording)
     assert run.holdout is not None
-    assert np.sqrt(run.holdout.largest_scale()) > MonitorParameters().max_std_scale
+    assert np.sqrt(run.holdout.scale_table().max()) > MonitorParameters().max_std_scale
     status = np.asarray(run.result.status)[gapped.gap_mask]
     assert (status == "bridged").mean() > 0.99
     rows = gapped.gap_mask & (np.asarray(run.result.status) == "bridged")

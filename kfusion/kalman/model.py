@@ -476,29 +476,6 @@ def is_impact(change_squared: float, dt: float, impact_jerk: float,
     return change_squared - 2.0 * NOISE_CHANGE_QUANTILE * noise_variance > limit * limit
 
 
-def impact_times(t: ArrayLike, accelerometer: ArrayLike, impact_jerk: float,
-                 noise_density: float) -> NDArray[np.float64]:
-    """Times (k,) s of the ends of the IMU intervals that are impacts (:func:`is_impact`),
-    from samples at t (n,) s (on the clock the caller fuses on) with specific forces
-    ``accelerometer`` (n, 3) m/s^2 and white noise of density ``noise_density``
-    (m/s^2/sqrt(Hz): ``noise_density^2 / dt`` per sample): the offline form of what the
-    filter marks as it predicts (:attr:`kfusion.kalman.KalmanFusion.last_impact_t`; the
-    filter's intervals are split at mocap frames, with the same rate of change in each
-    part). Empty for an infinite ``impact_jerk`` or fewer than two samples; an interval with
-    a NaN is no impact."""
-    times = np.asarray(t, dtype=float)
-    force = np.asarray(accelerometer, dtype=float)
-    if len(times) < 2 or impact_jerk == math.inf:
-        return np.empty(0)
-    dt = np.diff(times)
-    change_squared = np.sum(np.diff(force, axis=0) ** 2, axis=1)
-    limit = impact_jerk * dt
-    with np.errstate(divide="ignore", invalid="ignore"):
-        noise_variance = noise_density * noise_density / dt
-        beyond = change_squared - 2.0 * NOISE_CHANGE_QUANTILE * noise_variance > limit * limit
-    return times[1:][(dt > 0.0) & beyond]
-
-
 LOW_PASS_TIME_CONSTANT = 0.1
 """s: time constant of the low-passed specific force used for the scale-error term (long enough
 to average out the ringing of an impact, short against a limb movement)."""

@@ -47,7 +47,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kfusion.conventions import BRIDGED, LOST, TRACKED, median_interval
-from kfusion.kalman import model
 from kfusion.kalman.batch import (
     BODY,
     MARKERS,
@@ -101,7 +100,6 @@ from kfusion.recording import (
     Recording,
     occlusion_durations,
     occlusion_runs,
-    on_mocap_clock,
     without_held_frames,
 )
 from kfusion.track_file import TrackResult
@@ -161,8 +159,7 @@ class SmootherRun:
         nis: (m,) NIS of each row's fix in the forward pass (NaN where none was compared).
         params: the parameters used.
         monitor: the forward filter's consistency report (None without a monitor).
-        holdout: the hold-out gaps' scales (:class:`Holdout`; None without a monitor or without
-            gaps).
+        holdout: the hold-out gaps' scales (None without a monitor or without gaps).
         output_matrix: (m, 3, n) H at each row (rigid-body point ``H x + c``).
     """
 
@@ -174,57 +171,8 @@ class SmootherRun:
     nis: NDArray[np.float64]
     params: KalmanParameters
     monitor: MonitorReport | None = None
-    holdout: Holdout | None = None
+    holdout: HorizonScales | None = None
     output_matrix: NDArray[np.float64] | None = None
-
-
-@dataclass(frozen=True)
-class Holdout:
-    """The smoother's hold-out scales (:func:`holdout_scales`), matched apart on the hidden
-    fixes away from impacts (``quiet``) and near them (``near_impact``:
-    :func:`near_impact_rows`), as the online monitor keeps its shadow gaps' rows
-    (``MonitorParameters.impact_memory_s``); ``gaps``: the hidden gaps in all."""
-
-    quiet: HorizonScales
-    near_impact: HorizonScales
-    gaps: int
-
-    def row_tables(self, near: NDArray[np.bool_]) -> NDArray[np.float64]:
-        """(m, bins) the variance scale table of each of m rows: ``quiet``'s, or where
-        ``near`` (m,) the larger of the two per bin (a row near an impact is never given less
-        than one away from them)."""
-        quiet = self.quiet.scale_table()
-        knocked = np.maximum(quiet, self.near_impact.scale_table())
-        return np.where(np.asarray(near, dtype=bool)[:, None], knocked, quiet)
-
-    def largest_scale(self) -> float:
-        """The largest variance scale of either table."""
-        return max(self.quiet.largest_scale(), self.near_impact.largest_scale())
-
-
-def near_impact_rows(t: NDArray[np.float64], fixed: NDArray[np.bool_],
-                     impacts: NDArray[np.float64], memory_s: float) -> NDArray[np.bool_]:
-    """(m,) True for the rows t (m,) s between fixes (``fixed`` (m,)) whose gap, from the fix
-    before it less ``memory_s`` to the fix after it plus ``memory_s`` (s), holds one of the
-    sorted ``impacts`` (k,) s (:func:`kfusion.kalman.model.impact_times`); False at fixes. A
-    smoothed row rests on the IMU through its whole gap and on the states at both its ends,
-    which an impact shortly before or after the gap upsets."""
-    t = np.asarray(t, dtype=float)
-    fixed = np.asarray(fixed, dtype=bool)
-    last = np.maximum.accumulate(np.where(fixed, t, -np.inf))
-    following = np.minimum.accumulate(np.where(fixed, t, np.inf)[::-1])[::-1]
-    first = np.searchsorted(impacts, last - memory_s, side="left")
-    beyond = np.searchsorted(impacts, following + memory_s, side="right")
-    return ~fixed & (beyond > first)
-
-
-def recording_impacts(recording: Recording, params: KalmanParameters) -> NDArray[np.float64]:
-    """The impacts (k,) s of ``recording``'s IMU on the mocap clock, at the times the filter
-    fuses its samples (stamp minus ``imu_latency_s``): :func:`kfusion.kalman.model.
-    impact_times`."""
-    imu = on_mocap_clock(recording).imu
-    return model.impact_times(imu.t - params.imu_latency_s, imu.accelerometer,
-                              params.impact_jerk, params.accelerometer_noise_density)
 
 
 def contested_fixes(outcome: NDArray[np.str_]) -> NDArray[np.bool_]:
@@ -359,15 +307,14 @@ def fix_residual_rivals(fixed: NDArray[np.bool_], residual: NDArray[np.float64],
 
 def holdout_scales(recording: Recording, params: KalmanParameters, monitor: MonitorParameters,
                    seed: int = 0, measurement: str = BODY, engine: str = DEFAULT_ENGINE
-                   ) -> Holdout | None:
+                   ) -> HorizonScales | None:
     """The smoother's shadow gaps: hide visible fixes in gaps as long as the recording's own
     (those up to ``max_bridge_s``), smooth the copy, and collect per gap the variance scale
     each hidden fix needed (:func:`kfusion.monitor.required_scale`) by its distance to the
     nearest fix, in the bins ``monitor.holdout_edges_s``. The error is taken against the
     smoothed covariance plus the hidden fix's noise R, with R matched down by the forward pass's
     NIS when that is below 3 (the smoothed P is of the order of the mocap noise, so a wrong R
-    decides the scale). The hidden fixes near an impact (:func:`near_impact_rows`) are matched
-    apart from the others (:class:`Holdout`). None when the recording has no gap to
+    decides the scale). None when the recording has no gap to
     bridge or no room for a hold-out gap. Hold-out gaps sit where the mocap is visible for
     0.5 s before and through them."""
     mocap = recording.mocap
@@ -394,26 +341,19 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     noise = fix_noise_variance(params, run.nis, run.outcome)
     # matched at the bound's own confidence: the hold-out gaps sample the same recording the
     # real gaps are in (the online monitor's shadows predict gaps still to come)
-    settings = dataclasses.replace(monitor, memory=len(mocap.t),
-                                   horizon_edges_s=monitor.holdout_edges_s,
-                                   max_std_scale=monitor.holdout_max_std_scale,
-                                   matching_quantile=monitor.confidence)
-    quiet, knocked = HorizonScales(settings), HorizonScales(settings)
-    near = near_impact_rows(mocap.t, fixed, recording_impacts(recording, params),
-                            monitor.impact_memory_s)
+    scales = HorizonScales(dataclasses.replace(monitor, memory=len(mocap.t),
+                                               horizon_edges_s=monitor.holdout_edges_s,
+                                               max_std_scale=monitor.holdout_max_std_scale,
+                                               matching_quantile=monitor.confidence))
     bridged = run.result.status == BRIDGED
-    gaps = 0
     for start, stop in occlusion_runs(~hidden.gap_mask):
         rows = start + np.flatnonzero(bridged[start:stop])
         covariance = position_covariances(run.P[rows], run.output_matrix[rows]) \
             + noise * np.eye(3)
-        required = required_scales(run.result.position[rows] - hidden.truth_position[rows],
-                                   covariance, monitor.confidence)
-        gaps += len(rows) > 0
-        for scales, selected in ((quiet, ~near[rows]), (knocked, near[rows])):
-            if selected.any():
-                scales.add_gap(horizon[rows][selected], required[selected])
-    return Holdout(quiet, knocked, gaps)
+        scales.add_gap(horizon[rows], required_scales(
+            run.result.position[rows] - hidden.truth_position[rows], covariance,
+            monitor.confidence))
+    return scales
 
 
 EDGE_DOUBLINGS: Final = 3
@@ -708,14 +648,13 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                                                           measurement=measurement,
                                                           engine=engine)
     if holdout is not None:
-        settings = holdout.quiet.params
-        table = holdout.row_tables(near_impact_rows(t, fixed, recording_impacts(recording, params),
-                                                    settings.impact_memory_s))
+        bins = len(holdout.params.horizon_edges_s)
+        table = np.broadcast_to(holdout.scale_table(), (m, bins))
         allowed = np.full(m, bridging_allowed(math.sqrt(float(table.max())), holdout.gaps,
-                                              settings))
+                                              holdout.params))
         status, variance, _ = apply_monitor(status, variance, table, allowed,
                                             nearest_fix_distance(t, fixed),
-                                            settings.horizon_edges_s, forward=False)
+                                            holdout.params.horizon_edges_s, forward=False)
     # the forward pass's rival hypotheses, less its edge term at fixes: online no fix is known
     # to end before an occlusion, so the filter covers every fix while the edge test is on;
     # offline the hold-out knows which do and covers those (edge_holdout, above)
