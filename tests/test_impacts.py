@@ -95,6 +95,7 @@ def test_both_engines_keep_the_same_last_impact_time(impact_jerk: float) -> None
     assert all(any(0 <= t - start <= 0.05 for t in marked) for start in starts[:-1])
 
 
+@pytest.mark.broad
 def test_knocks_on_the_tapping_trial_keep_the_other_gaps_sharp() -> None:
     """BROAD trial 24 (tapping on a table), gaps cut with seed 1. With one scale for every
     gap, the knocks set the scale of all the gaps after them: median bound / error 6.5, 1.13 %
@@ -103,12 +104,8 @@ def test_knocks_on_the_tapping_trial_keep_the_other_gaps_sharp() -> None:
     from kfusion.datasets import broad_trial
     from kfusion.readers.broad import read_broad
 
-    try:
-        path = broad_trial("24")
-    except ValueError:
-        pytest.skip("BROAD trials not found (../shared/data/broad): real-data test skipped")
-    gapped = cut_gaps(read_broad(path, mocap_step=3), rng=np.random.default_rng(1),
-                      gap_range=(0.1, 0.3))
+    gapped = cut_gaps(read_broad(broad_trial("24"), mocap_step=3),
+                      rng=np.random.default_rng(1), gap_range=(0.1, 0.3))
     scores = {}
     for name, impact_jerk in (("apart", 1000.0), ("pooled", math.inf)):
         result = run_filter(gapped.recording, impact_jerk=impact_jerk).result
