@@ -389,6 +389,34 @@ def sum_mean(values: Sequence[float] | NDArray[np.float64]) -> float:
             return float(np.mean(np.asarray(values, dtype=float)))
 
 
+def add_exactly(partials: list[float], value: float) -> bool:
+    """Add the finite ``value`` to a sum held exactly as non-overlapping ``partials`` (in
+    place), the summation ``math.fsum`` runs (Shewchuk): afterwards ``math.fsum(partials)`` is
+    the correctly rounded sum of every value added, so a window's sum kept by adding each new
+    value and the negated one leaving gives :func:`sum_mean`'s bits without summing the window
+    again. Each step adds ``value`` to the partials from the smallest up::
+
+        hi = x + y,   lo = y - (hi - x)     (|x| >= |y|: hi + lo == x + y exactly)
+
+    keeping the nonzero ``lo`` and carrying ``hi``. Returns False, with ``partials`` no longer
+    valid, where a carry overflows (sums beyond the largest float: the caller sums the values
+    again)."""
+    index = 0
+    for partial in partials:
+        if abs(value) < abs(partial):
+            value, partial = partial, value
+        high = value + partial
+        if not math.isfinite(high):
+            return False
+        low = partial - (high - value)
+        if low:
+            partials[index] = low
+            index += 1
+        value = high
+    partials[index:] = [value]
+    return True
+
+
 @lru_cache(maxsize=1024)
 def nis_interval(samples: int, probability: float = 0.999, dof: int = 3) -> tuple[float, float]:
     """(lower, upper): the interval the mean of ``samples`` NIS values of ``dof`` each lies in
@@ -1460,6 +1488,9 @@ class ConsistencyMonitor:
         self._last_impact = -math.inf
         self._innovation_scales = HorizonScales(self.params)  # their innovation scales
         self._nis: deque[float] = deque(maxlen=self.params.nis_window)
+        # their sum held exactly (add_exactly; None: to be summed again), so that the window's
+        # mean is read without summing it at every fused fix
+        self._nis_partials: list[float] | None = []
         # the block test (block_nis): the running block's sums of y (3,) m and S (3, 3) m^2 and
         # its fixes (each sum built new, never changed in place: snapshots share them), and the
         # last nis_window // block_fixes blocks' NIS
@@ -1590,7 +1621,13 @@ class ConsistencyMonitor:
             self._bridging_value = None
         if kind == ACCEPTED and math.isfinite(nis):
             self._add_to_block(t, outcome)
+            leaving = self._nis[0] if len(self._nis) == self._nis.maxlen else None
             self._nis.append(nis)
+            partials = self._nis_partials
+            if partials is not None and not (
+                    add_exactly(partials, nis)
+                    and (leaving is None or add_exactly(partials, -leaving))):
+                self._nis_partials = None
             self._forget_derived()
             self._recent_nis.append(nis)  # snapshots copy it (_copy_state)
             recent = sum(self._recent_nis)
@@ -2007,11 +2044,22 @@ class ConsistencyMonitor:
             if samples == 0:
                 self._nis_window_value = (1.0, 0.0)
             else:
-                mean = sum_mean(self._nis)
+                mean = self._window_mean(samples)
                 upper = nis_interval(samples, self.params.nis_probability)[1]
                 self._nis_window_value = (mean / 3, max(mean / 3 if mean > upper else 0.0,
                                                         self._block_scale()))
         return self._nis_window_value
+
+    def _window_mean(self, samples: int) -> float:
+        """:func:`sum_mean` of the NIS window (``samples`` values), the same bits, from its
+        exactly held sum (:func:`add_exactly`) where that is valid."""
+        partials = self._nis_partials
+        if partials is not None:
+            try:
+                return math.fsum(partials) / samples
+            except OverflowError:  # a correctly rounded sum beyond the largest float
+                pass
+        return sum_mean(self._nis)
 
     def _block_scale(self) -> float:
         """The block test's matching factor, ``mean block NIS / 3`` of the window

@@ -7,9 +7,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import deque
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from kfusion import monitor
 from kfusion.kalman.batch import make_fusion, make_monitor, process_recording, resolve_parameters
 from kfusion.monitor import (
     ConsistencyMonitor,
@@ -108,3 +112,30 @@ def test_a_clearly_positive_definite_matrix_has_no_negative_eigenvalue():
             shown += 1
             assert np.linalg.eigh(matrix)[0].min() >= 0.0
     assert shown > 50  # the check did pass matrices (99 of them)
+
+
+@given(st.lists(st.one_of(st.floats(min_value=0.0, max_value=1e6),
+                          st.floats(min_value=0.0, max_value=1e-300),
+                          st.floats(min_value=1e300, max_value=1.7e308)),
+                min_size=1, max_size=400),
+       st.integers(min_value=1, max_value=50))
+@settings(max_examples=300, deadline=None)
+def test_a_window_sum_held_exactly_gives_the_bits_of_summing_it_again(values, window):
+    """add_exactly: adding each new value and the negated one leaving keeps the window's sum
+    exactly, so fsum of the partials is fsum of the window, to the bit; where a carry
+    overflows it says so (the monitor then sums the window again)."""
+    partials: list[float] | None = []
+    kept: deque[float] = deque(maxlen=window)
+    for value in values:
+        leaving = kept[0] if len(kept) == window else None
+        kept.append(value)
+        if partials is not None and not (
+                monitor.add_exactly(partials, value)
+                and (leaving is None or monitor.add_exactly(partials, -leaving))):
+            partials = None
+        if partials is not None:
+            try:
+                expected = math.fsum(kept)
+            except OverflowError:
+                continue
+            assert math.fsum(partials) == expected
