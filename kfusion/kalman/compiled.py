@@ -1264,6 +1264,9 @@ def filter_events(stream, index, begin, end, imu_t, accelerometer, gyroscope, im
     of the outputs per mocap row (row ``r`` at ``r - row_offset``). Returns -1, or the event
     number the kernel cannot handle (a non-increasing stamp that is not an identical
     duplicate): the caller then runs the filterpy engine, whose error message names it.
+    ``out_angle_variance`` and ``out_last_impact`` (each (m,) or empty: not kept) take the
+    orientation's angle variance and the time of the last impact (``LAST_IMPACT``) after each
+    row's frame.
 
 For the smoother (``out_transition`` with rows; empty (0, n, n) arrays otherwise) it also
 keeps per row the prediction the row's fix was fused into (the filtered state where none
