@@ -50,12 +50,7 @@ from kfusion.kalman.filter import (
     REACQUIRED,
 )
 from kfusion.kalman.layout import layout_for
-from kfusion.kalman.orientation import (
-    MEAN_KEEP,
-    MEAN_NORMALISER,
-    MEAN_WEIGHT,
-    PERSISTENCE_LIMIT,
-)
+from kfusion.kalman.orientation import PERSISTENCE_LIMIT, persistent_innovations
 from kfusion.kalman.parameters import KalmanParameters
 
 OUTCOME_NAMES: Final = (ACCEPTED, OCCLUDED, GATED, REACQUIRED, INITIALISED)
@@ -174,6 +169,7 @@ _SCALE_COHERENCE = model.SCALE_ERROR_COHERENCE_S
 _motion_acceleration_variance = njit(cache=True)(model.motion_acceleration_variance)
 _stamp_jitter_variance = njit(cache=True)(model.stamp_jitter_variance)
 _is_impact = njit(cache=True)(model.is_impact)
+_persistent_innovations = njit(cache=True)(persistent_innovations)
 _SATURATION_FRACTION = model.SATURATION_FRACTION
 _IMPLAUSIBLE = model.IMPLAUSIBLE_SAMPLE
 
@@ -644,16 +640,10 @@ def orientation_correct(orientation, q_measured, config):
         orientation[10:14] = 0.0
         orientation[0:4] = normalise(q_measured)
         return
-    root = math.sqrt(S)
     mean = INNOVATION_MEAN
-    ux, uy, uz = innovation[0] / root, innovation[1] / root, innovation[2] / root
-    mx = MEAN_KEEP * orientation[mean] + MEAN_WEIGHT * ux
-    my = MEAN_KEEP * orientation[mean + 1] + MEAN_WEIGHT * uy
-    mz = MEAN_KEEP * orientation[mean + 2] + MEAN_WEIGHT * uz
-    square = MEAN_KEEP * orientation[INNOVATION_SQUARE] + MEAN_WEIGHT * (ux * ux + uy * uy
-                                                                         + uz * uz)
-    length = mx * mx + my * my + mz * mz
-    statistic = length * MEAN_NORMALISER / max((square - length) / 3.0, 1.0)
+    (mx, my, mz), square, statistic = _persistent_innovations(
+        (orientation[mean], orientation[mean + 1], orientation[mean + 2]),
+        orientation[INNOVATION_SQUARE], innovation, S)
     if statistic > PERSISTENCE_LIMIT:
         factor = statistic / 3.0
         angle, cross, bias = factor * angle, factor * cross, factor * bias
@@ -838,8 +828,8 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
         else:
             f1 = f0
             omega1 = omega0
-        if _is_impact(squared_distance(f0, f1), dt, config[C_IMPACT_JERK],
-                      config[C_ACC_DENSITY] ** 2 / dt):
+        noise_variance = config[C_ACC_DENSITY] ** 2 / dt
+        if _is_impact(squared_distance(f0, f1), dt, config[C_IMPACT_JERK], noise_variance):
             scalars[LAST_IMPACT] = t
         rotation_into(orientation[0:4], R0)
         angle_variance = orientation[7]
@@ -865,7 +855,6 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
             if scale > 0.0 and had_low_pass and dt > 0.0:
                 change = squared_distance(scalars[LOW_PASS:LOW_PASS + 3], previous_low_pass)
                 bias_variance += scale * scale * change * _SCALE_COHERENCE / dt
-            noise_variance = config[C_ACC_DENSITY] ** 2 / dt
             acceleration_variance = scalars[ACCELEROMETER_EXTRA] + max(
                 squared_distance(f0, f1) - 2.0 * _NOISE_QUANTILE * noise_variance,
                 0.0) / 36.0 + _motion_acceleration_variance(
