@@ -171,8 +171,13 @@ class NoOpEstimator:
     def update(self, t: float, position: object, quaternion: object) -> str:
         return "accepted"
 
-    def read(self, t: float, trust_model: bool = True) -> object:
+    def read(self, t: float, trust_model: bool = True,
+             suspected_clock: tuple[float, float] | None = None) -> object:
         return self._reading
+
+    def note_gap_frame(self, t: float,
+                       suspected_clock: tuple[float, float] | None = None) -> None:
+        return None
 
     def finite(self) -> bool:
         return True

@@ -3,28 +3,18 @@ beyond the 99 % radius, by hand."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from benchmark_module import load_benchmark as load_module
 from scipy.stats import chi2
 
 from kfusion.evaluate import GapErrors
 
-BENCHMARK_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bound_coverage.py"
-
 
 def load_benchmark():
-    spec = importlib.util.spec_from_file_location("kfusion_benchmark_bound_coverage",
-                                                  BENCHMARK_PATH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_module("bound_coverage")
 
 
 def test_oracle_sharpness_by_hand():

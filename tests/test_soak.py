@@ -18,30 +18,22 @@ No timing is asserted.
 
 from __future__ import annotations
 
-import importlib.util
 import pickle
-import sys
 import tracemalloc
 from collections import deque
-from pathlib import Path
 
 import numpy as np
 import pytest
+from benchmark_module import load_benchmark
 
 from kfusion.monitor import MonitorParameters
 
-SOAK_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "soak.py"
 CHUNKS = 8
 TRACED = range(2, 8)  # tracemalloc on from the start of chunk index 2 to the end of chunk 7
 
 
 def load_soak():
-    spec = importlib.util.spec_from_file_location("kfusion_benchmark_soak", SOAK_PATH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("soak")
 
 
 @pytest.fixture(scope="module")

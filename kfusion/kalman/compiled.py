@@ -722,7 +722,7 @@ def work_size(n):
     return 2 * n * n + n + 18 + 12 + 18 + 6 + 9 * n + 24
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def update_views(work, n):
     """Views ``(H (3, n), offset (3,), y (3,), P H^T (n, 3), S (3, 3), S^-1 (3, 3), K (n, 3))``
     into the scratch array after :func:`work_views`' (the update's temporaries)."""
@@ -739,7 +739,7 @@ def update_views(work, n):
     return H, offset, y, PHT, S, S_inverse, work[start:start + 3 * n].reshape((n, 3))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def work_views(work, n):
     """Views ``(products (2, n, n), blocks (2, 3, 3), control (n,), f0 (3,), omega0 (3,),
     previous low-pass (3,), R0 (3, 3), R1 (3, 3), f (3,), omega (3,))`` into one scratch array
@@ -800,7 +800,7 @@ def squared_distance(a, b):
     return dx * dx + dy * dy + dz * dz
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config,
                      counters, interval, work):
     """Predict over [time, t] with the IMU (:meth:`KalmanFusion._advance_with_imu`): the
@@ -871,7 +871,7 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
     scalars[TIME] = t
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def advance(t, new_sample, f_end, omega_end, x, P, orientation, scalars, config, counters,
             interval, work):
     """Propagate to t: with the IMU where it covers the interval, the no-IMU model
@@ -921,7 +921,7 @@ def limit_into(sample, sensor_range, out):
     return 0.25 * sensor_range * sensor_range
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def predict_step(stamp, f_raw, omega_raw, x, P, orientation, scalars, config, counters,
                  interval, work):
     """One finite IMU sample with a stamp after the last (:meth:`KalmanFusion.
@@ -1045,7 +1045,7 @@ def initialise(t, z, H, offset, x, P, scalars, config, counters):
     counters[11] += 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation, scalars,
                 config, counters, interval, prior_x, prior_P, work):
     """One mocap frame (:meth:`KalmanFusion._update_valid`): advance to t holding the
@@ -1152,7 +1152,7 @@ def packed_size(n: int) -> int:
     return n + n * n + ORIENTATION_SIZE + SCALAR_COUNT + n + n * n
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def state_views(state, n):
     """Views ``(x (n,), P (n, n), orientation (ORIENTATION_SIZE,), scalars, prior_x (n,),
     prior_P (n, n))``
