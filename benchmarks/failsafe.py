@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 
 from kfusion.cli import main as cli
-from kfusion.conventions import LOST
+from kfusion.conventions import LOST, median_interval
 from kfusion.recording import write_recording
 from kfusion.simulate import OcclusionSpec, faults, simulate
 from kfusion.simulate.faults import Streams
@@ -339,6 +339,15 @@ def broad_cases(keys: list[str] | None, seconds: float) -> list[Case]:
     return cases
 
 
+def aliased_knocks(streams: Streams) -> Streams:
+    """:func:`kfusion.simulate.faults.imu_knocks` of 2 m/s^2 about every 4 s, ringing 5 Hz
+    below the IMU's sample rate: sampled, each knock is a slow 5 Hz swing of the specific
+    force, which the impact test (a jump between samples) does not see."""
+    rate = 1.0 / median_interval(streams.recording.imu.t)
+    return faults.imu_knocks(streams, every_s=4.0, amplitude=2.0, frequency=rate - 5.0,
+                             duration_s=0.04)
+
+
 Fault = Callable[[Streams], Streams]
 FAULTS: list[tuple[str, Fault, str]] = [
     ("none (nominal)", lambda s: s, "sim"),
@@ -357,11 +366,19 @@ FAULTS: list[tuple[str, Fault, str]] = [
      "sim"),
     ("body drifting 1.5 mm off over the 5 frames before each occlusion",
      faults.occlusion_edge_drift, "sim"),
+    ("body 0.7 mm off on the 5 frames before each occlusion",
+     lambda s: faults.occlusion_edge_offsets(s, 0.0007, 5), "sim"),
     ("body 4 mm off on the 10 frames after each occlusion",
      lambda s: faults.occlusion_edge_offsets(s, 0.004, 10, "after"), "sim"),
     ("mocap repeats the last pose through occlusions", faults.mocap_holds_last_pose, "sim"),
     ("IMU rate 8x lower from halfway, no anti-aliasing", faults.imu_rate_drops, "sim"),
     ("knocks on the IMU housing about every 0.7 s", faults.imu_knocks, "sim"),
+    ("knocks every 4 s ringing 5 Hz below the IMU rate (aliased; below the impact test)",
+     aliased_knocks, "sim"),
+    ("IMU mount turns 3 deg at 60 % of the recording (a strap slipping)",
+     faults.imu_mount_turns, "sim"),
+    ("mocap orientation drifting to 5 deg over the recording", faults.mocap_orientation_drift,
+     "sim"),
     ("IMU clock 5 ms behind", lambda s: faults.imu_clock_offset(s, -0.005), "sim"),
     ("IMU clock 5 ms ahead", lambda s: faults.imu_clock_offset(s, 0.005), "sim"),
     ("IMU clock 10 ms behind", lambda s: faults.imu_clock_offset(s, -0.010), "sim"),
@@ -381,6 +398,9 @@ BROAD_FAULTS: list[tuple[str, Fault]] = [
     ("BROAD + gravity sign flipped", faults.gravity_sign_flipped),
     ("BROAD + body 1.5 mm off on the 3 frames before each occlusion",
      faults.occlusion_edge_offsets),
+    ("BROAD + body 0.7 mm off on the 5 frames before each occlusion",
+     lambda s: faults.occlusion_edge_offsets(s, 0.0007, 5)),
+    ("BROAD + IMU mount turns 6 deg at 60 %", lambda s: faults.imu_mount_turns(s, 6.0)),
     ("BROAD + body 3 mm off on the 10 frames after each occlusion",
      lambda s: faults.occlusion_edge_offsets(s, 0.003, 10, "after")),
     ("BROAD + IMU rate 8x lower from halfway, no anti-aliasing", faults.imu_rate_drops),

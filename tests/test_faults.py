@@ -182,3 +182,42 @@ def test_mocap_holds_last_pose_fills_every_occlusion_forward(streams):
                                           mocap.quaternion[start - 1])
     visible = mocap.visible
     np.testing.assert_array_equal(held.recording.mocap.position[visible], mocap.position[visible])
+
+
+def test_imu_mount_turns_rotates_the_samples_after_its_onset(streams):
+    turned = fault.imu_mount_turns(streams, degrees=90.0, fraction=0.5, seed=3)
+    imu, before = turned.recording.imu, streams.recording.imu
+    onset = 0.5 * (streams.recording.mocap.t[0] + streams.recording.mocap.t[-1])
+    late = imu.t >= onset
+    assert late.any() and (~late).any()
+    for new, old in ((imu.accelerometer, before.accelerometer),
+                     (imu.gyroscope, before.gyroscope)):
+        np.testing.assert_array_equal(new[~late], old[~late])
+        # a quarter turn about the seed's axis a: the part along a stays, the rest turns by
+        # 90 degrees and keeps its length
+        axis = np.random.default_rng(3).standard_normal(3)
+        axis /= np.linalg.norm(axis)
+        along_new, along_old = new[late] @ axis, old[late] @ axis
+        np.testing.assert_allclose(along_new, along_old, atol=1e-9)
+        rest_new = new[late] - along_new[:, None] * axis
+        rest_old = old[late] - along_old[:, None] * axis
+        np.testing.assert_allclose(np.linalg.norm(rest_new, axis=1),
+                                   np.linalg.norm(rest_old, axis=1), atol=1e-9)
+        np.testing.assert_allclose(np.sum(rest_new * rest_old, axis=1), 0.0, atol=1e-9)
+    assert turned.recording.mocap is streams.recording.mocap
+
+
+def test_mocap_orientation_drift_grows_linearly_to_its_size(streams):
+    drifted = fault.mocap_orientation_drift(streams, degrees=5.0, seed=1)
+    mocap, before = drifted.recording.mocap, streams.recording.mocap
+    visible = np.flatnonzero(before.visible)
+    first, last = visible[0], visible[-1]
+    middle = visible[np.argmin(np.abs(before.t[visible] - 0.5 * (before.t[0] + before.t[-1])))]
+    fraction = (before.t - before.t[0]) / (before.t[-1] - before.t[0])
+    for row in (first, middle, last):
+        # the relative rotation R_old^T R_new is the bias, 5 degrees times the time fraction
+        relative = matrix_from_wxyz(before.quaternion[row]).T @ matrix_from_wxyz(
+            mocap.quaternion[row])
+        angle = np.degrees(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1, 1)))
+        assert angle == pytest.approx(5.0 * fraction[row], abs=1e-6)
+    np.testing.assert_array_equal(mocap.position, before.position)

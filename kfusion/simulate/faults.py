@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from kfusion.conventions import quaternion_multiply
+from kfusion.conventions import matrix_from_wxyz, quaternion_about_axis, quaternion_multiply
 from kfusion.recording import ImuSamples, MocapFrames, Recording, occlusion_runs
 
 HALF_TURN_ABOUT_X = np.array([0.0, 1.0, 0.0, 0.0])
@@ -161,6 +161,27 @@ def imu_knocks(streams: Streams, every_s: float = 0.7, amplitude: float = 60.0,
                    streams.mocap_arrival)
 
 
+def imu_mount_turns(streams: Streams, degrees: float = 3.0, fraction: float = 0.6,
+                    seed: int = 0) -> Streams:
+    """The IMU turns in its mount by ``degrees`` about a random axis (drawn with
+    ``np.random.default_rng(seed)``) at the fraction ``fraction`` of the recording's mocap
+    span, and stays turned (a strap slipping): from then on its samples are those of a sensor
+    frame rotated by R, ``f' = R^T f`` and ``omega' = R^T omega``, while ``imu_to_body`` still
+    says the old mount. A fault that switches on after the monitor has learned the recording."""
+    imu = streams.recording.imu
+    axis = np.random.default_rng(seed).standard_normal(3)
+    rotation = matrix_from_wxyz(quaternion_about_axis(axis / np.linalg.norm(axis),
+                                                      [np.radians(degrees)])[0])
+    turned = np.asarray(imu.t) >= _fraction_time(streams, fraction)
+    accelerometer = np.array(imu.accelerometer, dtype=float)
+    gyroscope = np.array(imu.gyroscope, dtype=float)
+    accelerometer[turned] = accelerometer[turned] @ rotation  # rows: (R^T f)^T = f^T R
+    gyroscope[turned] = gyroscope[turned] @ rotation
+    samples = ImuSamples(imu.t, accelerometer, gyroscope)
+    return Streams(dataclasses.replace(streams.recording, imu=samples), streams.imu_arrival,
+                   streams.mocap_arrival)
+
+
 def imu_clock_offset(streams: Streams, offset_s: float) -> Streams:
     """IMU stamps ``offset_s`` s off the mocap clock (``stamp = true time + offset_s``; negative:
     the IMU clock is behind); samples still arrive in real time."""
@@ -216,6 +237,22 @@ def mocap_frame_stamped_ahead(streams: Streams, ahead_s: float = 0.15,
         index = _visible_index_after(mocap, draw)
         t[index] = mocap.t[index] + ahead_s
     return _mocap(streams, t=t)
+
+
+def mocap_orientation_drift(streams: Streams, degrees: float = 5.0, seed: int = 0
+                            ) -> Streams:
+    """The rigid body's orientation biased by a rotation about a fixed random axis (drawn with
+    ``np.random.default_rng(seed)``, in the body frame) that grows linearly from 0 at the first
+    frame to ``degrees`` at the last (markers creeping on a soft strap, a rigid-body definition
+    slowly re-fitted): ``q' = q ⊗ Exp(theta(t) axis)``. Positions unchanged; a drift, not a
+    jump, so no single frame disagrees with the gyroscope."""
+    mocap = streams.recording.mocap
+    axis = np.random.default_rng(seed).standard_normal(3)
+    t = np.asarray(mocap.t, dtype=float)
+    span = max(float(t[-1] - t[0]), 1e-9)
+    bias = quaternion_about_axis(axis / np.linalg.norm(axis),
+                                 np.radians(degrees) * (t - t[0]) / span)
+    return _mocap(streams, quaternion=quaternion_multiply(mocap.quaternion, bias))
 
 
 def orientation_flip_before_gaps(streams: Streams) -> Streams:
