@@ -1119,8 +1119,9 @@ class MonitorParameters:
         holdout_max_std_scale: the same for the smoother's hold-out. Its scale is matched on
             the recording's own gaps, offline, at their own lengths (nothing is extrapolated
             to gaps still to come), and the smoothed P is small enough that real recordings
-            legitimately need more: BROAD 24 (tapping) needs between 2 and 5 and is covered
-            at 0.986 with it.
+            legitimately need more: BROAD 24 (tapping) needed between 2 and 5 and was covered
+            at 0.986 with it while the filter took its knocks for smooth motion (with the
+            impact rule, :func:`kfusion.kalman.model.interpolation_variance`, 1.2).
         settle_s: when the predictions are shown wrong now -- the sum of the last
             ``recent_fixes`` fixes' NIS beyond its chi-square quantile at ``nis_probability``,
             or a fix ending a gap of at least ``settle_after_s`` with an NIS beyond the
@@ -1203,8 +1204,10 @@ class MonitorParameters:
             of an episode were matched with the calm parts' scale and 1.9 % of one
             placement's gap rows went beyond their 99 % bound (0.05 % with one scale); with
             2.5 s, the quiet class is the calm parts and every placement keeps at most 1 %
-            (0.0-1.0 %, median bound / error 4.2-5.7). Measured only on trial 24, the one
-            recording here with knocks (``benchmarks/bound_coverage.py --gap-seeds 5``).
+            (0.0-1.0 %, median bound / error 4.2-5.7; 0.0-0.7 % and 4.0-5.2 since the filter
+            gives an impact's interval its own variance, :func:`kfusion.kalman.model.
+            interpolation_variance`). Measured only on trial 24, the one recording here with
+            knocks (``benchmarks/bound_coverage.py --gap-seeds 5``).
     """
 
     nis_window: int = 100

@@ -7,6 +7,7 @@ The two-pass and event-by-event monitor runs with knocks are compared bit for bi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -34,6 +35,37 @@ def test_is_impact_by_hand() -> None:
     allowance = 2.0 * model.NOISE_CHANGE_QUANTILE * noise
     assert model.is_impact(25.0 + allowance + 1e-9, 0.005, 1000.0, noise)
     assert not model.is_impact(25.0 + allowance - 1e-9, 0.005, 1000.0, noise)
+
+
+def test_interpolation_variance_by_hand() -> None:
+    # noise of 0.01 (m/s^2)^2 per sample explains 2 * 11.34 * 0.01 of the change^2; the rest,
+    # 36 (m/s^2)^2, is spread as |df|^2 / 36 = 1 per axis, or on an impact |df|^2 / 8 = 4.5
+    noise = 0.01
+    change_squared = 36.0 + 2.0 * model.NOISE_CHANGE_QUANTILE * noise
+    assert model.interpolation_variance(change_squared, noise) == pytest.approx(1.0, abs=1e-12)
+    assert model.interpolation_variance(change_squared, noise, True) == pytest.approx(
+        4.5, abs=1e-12)
+    assert model.interpolation_variance(0.1, noise, True) == 0.0  # within the noise
+
+
+def test_the_numpy_reference_treats_impacts_as_the_filter_does() -> None:
+    """The reference writes the impact rule out itself (|df|^2 / 8 beyond impact_jerk): over a
+    knocked recording it equals the filterpy filter, and the knocks widen the bound."""
+    from kfusion.kalman.reference import reference_filter
+
+    _, streams = knocked()
+    recording = streams.recording
+    params = resolve_parameters(recording, None, {})
+    run = run_filter(recording, params, monitor=None, engine="filterpy")
+    reference = reference_filter(recording, params)
+    np.testing.assert_allclose(run.x, reference.x, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(run.P, reference.P, rtol=0, atol=1e-9)
+    # with the impact rule off the knocks' intervals get |df|^2 / 36: a smaller bound
+    off = run_filter(recording, dataclasses.replace(params, impact_jerk=math.inf), monitor=None,
+                     engine="filterpy")
+    bridged = run.result.status == "bridged"
+    assert (run.result.std[bridged] >= off.result.std[bridged] - 1e-15).all()
+    assert (run.result.std[bridged] > 1.5 * off.result.std[bridged]).any()
 
 
 def knocked(seed: int = 5) -> tuple[Recording, faults.Streams]:

@@ -163,12 +163,12 @@ _NO_IMU_DENSITY = streamhealth.NO_IMU_ACCELERATION_DENSITY
 _HOLD_MIN = streamhealth.HOLD_MIN_S
 _HOLD_INTERVALS = streamhealth.HOLD_INTERVALS
 _ORIENTATION_MIN_ANGLE = streamhealth.ORIENTATION_GATE_MIN_ANGLE
-_NOISE_QUANTILE = model.NOISE_CHANGE_QUANTILE
 _LOW_PASS_TAU = model.LOW_PASS_TIME_CONSTANT
 _SCALE_COHERENCE = model.SCALE_ERROR_COHERENCE_S
 _motion_acceleration_variance = njit(cache=True)(model.motion_acceleration_variance)
 _stamp_jitter_variance = njit(cache=True)(model.stamp_jitter_variance)
 _is_impact = njit(cache=True)(model.is_impact)
+_interpolation_variance = njit(cache=True)(model.interpolation_variance)
 _persistent_innovations = njit(cache=True)(persistent_innovations)
 _SATURATION_FRACTION = model.SATURATION_FRACTION
 _IMPLAUSIBLE = model.IMPLAUSIBLE_SAMPLE
@@ -829,7 +829,9 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
             f1 = f0
             omega1 = omega0
         noise_variance = config[C_ACC_DENSITY] ** 2 / dt
-        if _is_impact(squared_distance(f0, f1), dt, config[C_IMPACT_JERK], noise_variance):
+        impact = _is_impact(squared_distance(f0, f1), dt, config[C_IMPACT_JERK],
+                            noise_variance)
+        if impact:
             scalars[LAST_IMPACT] = t
         rotation_into(orientation[0:4], R0)
         angle_variance = orientation[7]
@@ -855,9 +857,8 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
             if scale > 0.0 and had_low_pass and dt > 0.0:
                 change = squared_distance(scalars[LOW_PASS:LOW_PASS + 3], previous_low_pass)
                 bias_variance += scale * scale * change * _SCALE_COHERENCE / dt
-            acceleration_variance = scalars[ACCELEROMETER_EXTRA] + max(
-                squared_distance(f0, f1) - 2.0 * _NOISE_QUANTILE * noise_variance,
-                0.0) / 36.0 + _motion_acceleration_variance(
+            acceleration_variance = scalars[ACCELEROMETER_EXTRA] + _interpolation_variance(
+                squared_distance(f0, f1), noise_variance, impact) + _motion_acceleration_variance(
                     squared_distance(f1, scalars[LOW_PASS:LOW_PASS + 3]), dt, scale,
                     _LOW_PASS_TAU) + _stamp_jitter_variance(
                         squared_distance(f0, f1), dt, config[C_TIMESTAMP_JITTER])

@@ -856,8 +856,9 @@ class KalmanFusion:
         if self._accelerometer is not None and orientation.state.initialised:
             f0, f1, omega0, omega1 = self._interval_ends(t, f_end, omega_end)
             noise_variance = self.params.accelerometer_noise_density ** 2 / dt
-            if model.is_impact(_squared_distance(f0, f1), dt, self.params.impact_jerk,
-                               noise_variance):
+            impact = model.is_impact(_squared_distance(f0, f1), dt, self.params.impact_jerk,
+                                     noise_variance)
+            if impact:
                 self._last_impact = t
             R0 = self._R_current if self._R_current is not None else orientation.matrix()
             angle_variance = orientation.angle_variance
@@ -879,7 +880,7 @@ class KalmanFusion:
                         _squared_distance(low_pass, previous_low_pass), dt)
                 acceleration_variance = (self._accelerometer_extra_variance
                                          + model.interpolation_variance(
-                                             _squared_distance(f0, f1), noise_variance)
+                                             _squared_distance(f0, f1), noise_variance, impact)
                                          + model.motion_acceleration_variance(
                                              _squared_distance(f1, low_pass), dt,
                                              params.accelerometer_scale_error,
