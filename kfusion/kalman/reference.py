@@ -172,7 +172,7 @@ class _Reference:
         # the change between the samples beyond their noise: linear interpolation's error,
         # |df|^2 / 36 per axis, or / 8 where it is faster than impact_jerk (an impact)
         excess = (f1 - f0) @ (f1 - f0) - 2 * 11.3448667 * white
-        impact = excess > (params.impact_jerk * dt) ** 2
+        impact = dt > 0 and excess > (params.impact_jerk * dt) ** 2
         held = self.f_extra + max(excess, 0.0) / (8.0 if impact else 36.0)
         # the scale error's fast part S (f - f_lp), correlated over the low-pass time constant
         assert self.low_pass is not None
