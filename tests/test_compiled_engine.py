@@ -353,6 +353,40 @@ def test_position_update_equals_the_joseph_form(size: int) -> None:
         np.testing.assert_array_equal(P, P.T)
 
 
+@pytest.mark.parametrize("size", [9, 12])
+def test_rts_row_equals_the_numpy_step(size: int) -> None:
+    """The compiled RTS step (allocation-free, its own Gaussian elimination) against
+    ``smoother.rts_step`` (numpy's solve and products), on covariances spanning 12 decades
+    (position to bias), and against ``np.linalg.solve`` for the elimination itself."""
+    from kfusion.kalman.smoother import rts_step
+
+    rng = np.random.default_rng(7)
+    scales = np.geomspace(1e-6, 1.0, size)
+    work = np.empty((5, size, size))
+    for _ in range(20):
+        A = rng.normal(size=(4, size, size)) * scales[:, None]
+        P = A @ A.transpose(0, 2, 1) + np.eye(size) * 1e-14
+        x = rng.normal(size=(3, size))
+        transition = np.eye(size) + 0.01 * rng.normal(size=(size, size))
+        expected_x, expected_P = rts_step(x[0], P[0], x[2], P[2], transition, x[1], P[1])
+        rows_x, rows_P = x[:2].copy(), P[:2].copy()
+        compiled.rts_row(rows_x, rows_P, 0, x[2:3], P[2:3], transition[None], 0, work)
+        np.testing.assert_allclose(rows_x[0], expected_x, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(rows_P[0], expected_P, rtol=1e-6,
+                                   atol=1e-9 * np.abs(expected_P).max())
+        np.testing.assert_array_equal(rows_P[0], rows_P[0].T)
+        np.testing.assert_array_equal(rows_x[1], x[1])  # row k + 1 is only read
+        out = np.empty((size, 3))
+        right = rng.normal(size=(size, 3))
+        assert compiled.solve_into(P[2], right, out, np.empty((size, size)))
+        # backward stable: the residual is a few rounding errors of |P| |out|
+        residual = np.abs(P[2] @ out - right).max()
+        assert residual <= 1e-14 * size * np.abs(P[2]).max() * np.abs(out).max()
+    singular = np.zeros((size, size))
+    assert not compiled.solve_into(singular, np.ones((size, 1)), np.empty((size, 1)),
+                                   np.empty((size, size)))
+
+
 def test_status_codes_follow_the_status_rule() -> None:
     """The compiled status loop against the rule row by row, thresholds hit exactly."""
     from kfusion.kalman.batch import row_statuses
