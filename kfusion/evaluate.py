@@ -98,6 +98,16 @@ def cut_gaps(
         gaps += 1
         cursor = t[stop] + spacing
 
+    return hide_frames(recording, gap_mask)
+
+
+def hide_frames(recording: Recording, gap_mask: NDArray[np.bool_]) -> GappedRecording:
+    """``recording`` with the mocap rows where ``gap_mask`` (m,) is True hidden (position and
+    quaternion NaN, and every marker of them when the markers share the mocap's stamps), the
+    hidden positions kept as the truth (NaN where the mocap was not visible). The last step of
+    :func:`cut_gaps`, for gaps placed another way."""
+    mocap = recording.mocap
+    t = mocap.t
     position = np.where(gap_mask[:, None], np.nan, mocap.position)
     quaternion = np.where(gap_mask[:, None], np.nan, mocap.quaternion)
     gapped = recording.with_mocap(MocapFrames(t=t, position=position, quaternion=quaternion))
@@ -106,7 +116,7 @@ def cut_gaps(
         gapped = dataclasses.replace(gapped, markers=MarkerFrames(
             t=markers.t, names=markers.names,
             position=np.where(gap_mask[:, None, None], np.nan, markers.position)))
-    truth = np.where(visible[:, None], mocap.position, np.nan)
+    truth = np.where(mocap.visible[:, None], mocap.position, np.nan)
     return GappedRecording(recording=gapped, truth_position=truth, gap_mask=gap_mask)
 
 

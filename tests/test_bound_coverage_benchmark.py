@@ -3,6 +3,7 @@ beyond the 99 % radius, by hand."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -58,3 +59,37 @@ def test_beyond_r99_counts_the_rows_outside_the_99_percent_radius():
     diagonal = GapErrors(np.array([[2.9, 2.9, 0.0]]), np.ones((1, 3)), 0)
     assert load_benchmark().row(diagonal)["beyond99"] == 1.0
     assert load_benchmark().row(diagonal)["coverage"] == 1.0
+
+
+def test_violent_placement_starts_gaps_just_before_the_largest_jolts():
+    """``--placement violent``: a gap starts ``VIOLENT_LEAD_S`` before the most violent frame,
+    the next ones at the next peaks at least ``spacing + 0.6`` s apart, and none where the mocap
+    was not visible for ``spacing`` s before it."""
+    from kfusion.evaluate import hide_frames
+    from kfusion.recording import ImuSamples
+    from kfusion.simulate import OcclusionSpec, simulate
+
+    benchmark = load_benchmark()
+    recording = simulate("arm_lift", seed=1, duration=20.0,
+                         occlusions=OcclusionSpec(gap_range=(0.1, 0.3), spacing=3.0)).recording
+    imu = recording.imu
+    accelerometer = np.array(imu.accelerometer)
+    for jolt_t, size in ((12.0, 300.0), (6.0, 200.0), (6.5, 150.0)):
+        accelerometer[np.argmin(np.abs(imu.t - jolt_t))] += size  # one sample, a jump and back
+    jolted = dataclasses.replace(recording,
+                                 imu=ImuSamples(imu.t, accelerometer, imu.gyroscope))
+    t = jolted.mocap.t
+    mask = benchmark.violent_gap_mask(jolted, np.random.default_rng(0), (0.1, 0.3), 3)
+    starts = t[np.flatnonzero(np.diff(np.r_[False, mask].astype(int)) == 1)]
+    assert len(starts) == 3 and np.diff(np.sort(starts)).min() >= 1.6
+    # a gap starts at most a frame or two before each of the two largest jolts (the violence is
+    # averaged over 30 ms) and hides the frame at it; 6.5 s is too close to 6.0 for a third
+    for jolt_t in (12.0, 6.0):
+        assert np.any((starts >= jolt_t - 0.035) & (starts <= jolt_t))
+        assert mask[np.argmin(np.abs(t - jolt_t))]
+    assert np.min(np.abs(starts - 6.5)) > 0.4
+    visible = jolted.mocap.visible
+    for start in starts:
+        before = (t >= start - 1.0) & (t < start)
+        assert visible[before].all()
+    assert np.isnan(hide_frames(jolted, mask).recording.mocap.position[mask]).all()
