@@ -1459,6 +1459,13 @@ class HorizonScales:
         return self.scale_table()[horizon_bins(horizons_s, self.params.horizon_edges_s)]
 
 
+def near_impact(last_impact_t: float, fix_t: float, memory_s: float) -> bool:
+    """True when a gap whose last fix came at ``fix_t`` (s) is near an impact: the last one
+    (``last_impact_t``, s; -inf: none) came after the fix or at most ``memory_s`` before it
+    (``MonitorParameters.impact_memory_s``)."""
+    return last_impact_t >= fix_t - memory_s
+
+
 def near_impact_table(near: HorizonScales, quiet: HorizonScales) -> NDArray[np.float64]:
     """(bins,) the variance scale per horizon bin of a gap near an impact: ``near``'s table
     (:meth:`HorizonScales.scale_table`, with its limits while its evidence is thin), and at
@@ -1488,7 +1495,6 @@ class ConsistencyMonitor:
         # running gap is near one, from the main filter's last_impact_t (s) at the last frame
         self._impact_scales = HorizonScales(self.params)
         self._near_impact = False
-        self._last_impact = -math.inf
         self._innovation_scales = HorizonScales(self.params)  # their innovation scales
         self._nis: deque[float] = deque(maxlen=self.params.nis_window)
         # their sum held exactly (add_exactly; None: to be summed again), so that the window's
@@ -1605,9 +1611,9 @@ class ConsistencyMonitor:
         estimate at t before this frame (needed only when :meth:`wants_prior`)."""
         self._widening_value = None  # the state changes from here
         kind, nis, params = outcome.kind, outcome.nis, self.params
-        self._last_impact = fusion.last_impact_t
+        last_impact = fusion.last_impact_t
         near = self._last_fix is not None and \
-            self._last_impact >= self._last_fix[0] - params.impact_memory_s
+            near_impact(last_impact, self._last_fix[0], params.impact_memory_s)
         if near != self._near_impact:  # (the gap this frame continues or ends)
             self._near_impact = near
             self._scale_table_value = None
@@ -1682,7 +1688,7 @@ class ConsistencyMonitor:
                 self._rows_noise.append(self._mocap_noise_variance())
                 self._rows_velocity.append(estimate.velocity - self._start_velocity)
                 self._rows_impact.append(
-                    self._last_impact >= self._start - params.impact_memory_s)
+                    near_impact(last_impact, self._start, params.impact_memory_s))
             if horizon >= params.shadow_window_s or kind not in USED_OUTCOMES:
                 self._close()
         if self._start is None and kind == ACCEPTED and t >= self._next_start:

@@ -53,11 +53,15 @@ class Streams:
 
 
 def _imu(streams: Streams, keep: NDArray[np.bool_] | None = None,
-         t: NDArray[np.float64] | None = None) -> Streams:
+         t: NDArray[np.float64] | None = None, accelerometer: NDArray[np.float64] | None = None,
+         gyroscope: NDArray[np.float64] | None = None) -> Streams:
+    """``streams`` with the IMU samples where ``keep``, and the stamps or readings given."""
     imu = streams.recording.imu
     keep = np.ones(len(imu), dtype=bool) if keep is None else keep
     stamps = imu.t if t is None else t
-    samples = ImuSamples(stamps[keep], imu.accelerometer[keep], imu.gyroscope[keep])
+    accelerometer = imu.accelerometer if accelerometer is None else accelerometer
+    gyroscope = imu.gyroscope if gyroscope is None else gyroscope
+    samples = ImuSamples(stamps[keep], accelerometer[keep], gyroscope[keep])
     return Streams(dataclasses.replace(streams.recording, imu=samples),
                    streams.imu_arrival[keep], streams.mocap_arrival)
 
@@ -156,9 +160,7 @@ def imu_knocks(streams: Streams, every_s: float = 0.7, amplitude: float = 60.0,
         accelerometer[inside] += (size * (dds * h + 2.0 * ds * dh + s * ddh))[:, None] \
             * direction
         start += every_s * rng.uniform(0.5, 1.5)
-    samples = ImuSamples(t, accelerometer, imu.gyroscope)
-    return Streams(dataclasses.replace(streams.recording, imu=samples), streams.imu_arrival,
-                   streams.mocap_arrival)
+    return _imu(streams, accelerometer=accelerometer)
 
 
 def imu_mount_turns(streams: Streams, degrees: float = 3.0, fraction: float = 0.6,
@@ -177,9 +179,7 @@ def imu_mount_turns(streams: Streams, degrees: float = 3.0, fraction: float = 0.
     gyroscope = np.array(imu.gyroscope, dtype=float)
     accelerometer[turned] = accelerometer[turned] @ rotation  # rows: (R^T f)^T = f^T R
     gyroscope[turned] = gyroscope[turned] @ rotation
-    samples = ImuSamples(imu.t, accelerometer, gyroscope)
-    return Streams(dataclasses.replace(streams.recording, imu=samples), streams.imu_arrival,
-                   streams.mocap_arrival)
+    return _imu(streams, accelerometer=accelerometer, gyroscope=gyroscope)
 
 
 def imu_clock_offset(streams: Streams, offset_s: float) -> Streams:
