@@ -108,7 +108,10 @@ over the last ``gap_end_window`` occlusions:
   comes ``settle_after_s`` into the gap, not at its end, so it can cover the rest of the gap
   these fixes lead into, where the first waits for gaps to end; with the body drifting 1.5 mm
   over the 5 frames before each occlusion it fired after 1-2 occlusions, the gap ends' test
-  after 2-7.
+  after 2-7. It runs over the last ``edge_s`` of fixes and over each of ``longer_edges_s``
+  (an offset on 5 frames hardly shows in the last 3), each span its own windowed test at
+  ``edge_test_probability``, looser than the NIS tests' (one value per occlusion fills a
+  window slowly, and a miss costs more than a false alarm).
 
 While either fails high (mean beyond the windowed limit), until its mean is back to 3, the bound
 h s into a gap adds ``sigma^2 (a + b h)^2`` per axis, sigma^2 the larger of the two tests'
@@ -151,6 +154,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kfusion.conventions import ACCEPTED, GATED, REACQUIRED, USED_OUTCOMES
+from kfusion.guards import short_repr
 
 if TYPE_CHECKING:
     from kfusion.kalman.filter import FilterEstimate, KalmanFusion, KalmanSnapshot, UpdateOutcome
@@ -1186,6 +1190,31 @@ class MonitorParameters:
             and from 35 ms on no more (``benchmarks/occlusion_edges.py``). The smoother's
             hold-out lengthens it where the data shows longer offsets
             (:func:`kfusion.kalman.smoother.edge_holdout`).
+        longer_edges_s: further spans (s, each longer than ``edge_s``) over which the fixes
+            before each occlusion are tested for an offset, each span its own windowed test
+            (:meth:`ConsistencyMonitor._gap_start`). The test's signature assumes the offset
+            starts at the span's first fix; by the last ``edge_s`` of a longer offset the
+            filter has followed it, and those fixes' innovations hardly show it. Measured with
+            the body 0.7 mm off on the 5 frames before each occlusion (simulated random_reach,
+            30 s, seeds 0 and 1): with ``edge_s`` alone the test's mean T was 3.06 and 2.62
+            (no offset: about 3) and 2.5 % and 5.0 % of the rows beyond the 99 % bound; tested
+            over 50 ms, 8.3 and 6.9, 0.8 % and 2.4 %. Over 80 ms it fired on neither the 3-
+            nor the 5-frame offsets reliably, so the spans are few and short.
+        edge_test_probability: two-sided probability of the windowed test of the fixes
+            before occlusions (:meth:`ConsistencyMonitor._gap_start`; the NIS tests use
+            ``nis_probability``). Each occlusion gives one value of T, so a window of them
+            fills slowly, and a 0.7 mm offset (T about 6.5-8 against 3) failed the test at
+            0.999 only after about 10 occlusions, every one before bridged from the offset
+            fixes with a bound that knew nothing of it. A false alarm costs sharpness (the
+            edge term on for a while), a miss the invariant, so the test is looser than the
+            NIS tests. ``benchmarks/failsafe.py --seeds 5 --duration 30``, body 0.7 mm off on
+            the 5 frames before each occlusion, rows beyond the 99 % bound (tracker; kalman
+            the same within 0.1): 0.999: 3.5 % (simulated), 2.5 % (BROAD 21 and 06); 0.99:
+            0.9 % and 0.7 %; 0.95: 0.4 % and 0.5 %. On clean data
+            (``benchmarks/bound_coverage.py``, 47 recordings) 0.99 changed nothing and 0.95
+            turned the edge term on in 3 simulated recordings (median bound / error 2.0-2.1
+            -> 2.4-2.6 kalman, 2.1 -> 2.8-3.3 smoother; pooled 3.18 -> 3.20 and 2.72 -> 2.77),
+            in none of BROAD's.
         block_fixes: consecutive accepted fixes whose innovations the block test sums
             (:func:`block_nis`; ``nis_window // block_fixes`` blocks in its window, at least
             one). The fused position averages the last few fixes (R / P+ of them, about 4 at
@@ -1237,6 +1266,8 @@ class MonitorParameters:
     motion_error_acceleration: float = 2.0
     gap_end_window: int = 20
     edge_s: float = 0.03
+    longer_edges_s: tuple[float, ...] = (0.05,)
+    edge_test_probability: float = 0.95
     block_fixes: int = 8
     impact_memory_s: float = 2.5
 
@@ -1260,7 +1291,8 @@ class MonitorParameters:
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"MonitorParameters.{name}: expected an integer >= 1, "
                                  f"got {value!r}")
-        for name in ("nis_probability", "confidence", "matching_quantile", "step_probability"):
+        for name in ("nis_probability", "confidence", "matching_quantile", "step_probability",
+                     "edge_test_probability"):
             value = getattr(self, name)
             if not 0.0 < value < 1.0 and not (name == "matching_quantile" and value == 1.0):
                 raise ValueError(f"MonitorParameters.{name}: expected a probability in (0, 1), "
@@ -1272,6 +1304,15 @@ class MonitorParameters:
                 raise ValueError(f"MonitorParameters.{name}: expected increasing positive "
                                  f"times, got {getattr(self, name)!r}")
             object.__setattr__(self, name, edges)
+        longer = tuple(self.longer_edges_s) \
+            if isinstance(self.longer_edges_s, (tuple, list)) else (math.nan,)
+        if any(isinstance(span, bool) or not isinstance(span, (int, float))
+               or not math.isfinite(span) for span in longer) \
+                or any(b <= a for a, b in zip((self.edge_s, *longer), longer, strict=False)):
+            raise ValueError(f"MonitorParameters.longer_edges_s: expected increasing times "
+                             f"longer than edge_s ({self.edge_s}), got "
+                             f"{short_repr(self.longer_edges_s)}")
+        object.__setattr__(self, "longer_edges_s", tuple(float(span) for span in longer))
         if self.shadow_period_s < self.shadow_window_s:
             raise ValueError(f"MonitorParameters.shadow_period_s: expected >= shadow_window_s "
                              f"({self.shadow_window_s}), got {self.shadow_period_s}")
@@ -1322,7 +1363,8 @@ class MonitorReport:
         gap_start_statistic: the mean of the statistic T of the fixes before the last
             ``gap_end_window`` occlusions (:func:`edge_offset_evidence`, each divided by the
             NIS window's matching factor while the windowed NIS test fails high; chi-square(3),
-            mean 3, without an offset on them), NaN before the first.
+            mean 3, without an offset on them), the largest over the spans tested
+            (``MonitorParameters.edge_s`` and ``longer_edges_s``), NaN before the first.
         impact_variance_scale: (bins,) the same as ``variance_scale``, matched on the rows
             near impacts (``MonitorParameters.impact_memory_s``; NaN: none yet).
     """
@@ -1515,16 +1557,20 @@ class ConsistencyMonitor:
         self._gap_end_edge: deque[float] = deque(maxlen=self.params.gap_end_window)
         self._edge_value: float | None = None  # _edge_variance(), None: not computed
         self._edge_on = False  # the gap ends' test failed high, not yet back to 3 (_gap_end)
-        # the fixes before the last gap_end_window occlusions (_gap_start): the edge offset
-        # test's statistic (edge_offset_evidence) and the offset variance each needed, and the
-        # innovations (y (3,) m, S (3, 3) m^2) of the last edge_frames fixes of the running run
-        self._gap_start_statistic: deque[float] = deque(maxlen=self.params.gap_end_window)
-        self._gap_start_edge: deque[float] = deque(maxlen=self.params.gap_end_window)
-        self._gap_start_on = False  # their test failed high, not yet back to 3 (_gap_start)
+        # the fixes before the last gap_end_window occlusions (_gap_start), per span tested
+        # (edge_s, then longer_edges_s; NaN: the run before that occlusion was shorter): the
+        # edge offset test's statistic (edge_offset_evidence) and the offset variance each
+        # needed, and the innovations (y (3,) m, S (3, 3) m^2) of the last fixes of the running
+        # run, as many as the longest span holds
+        self._gap_start_statistic: deque[tuple[float, ...]] = \
+            deque(maxlen=self.params.gap_end_window)
+        self._gap_start_edge: deque[tuple[float, ...]] = deque(maxlen=self.params.gap_end_window)
+        # per span: its test failed high, not yet back to 3 (_gap_start)
+        self._gap_start_on = (False,) * (1 + len(self.params.longer_edges_s))
         self._run_innovations: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = \
             deque(maxlen=1)
-        self._edge_frames_period = math.nan  # _edge_frame_count's rounded period, s, and count
-        self._edge_frames_count = 0
+        self._edge_frames_period = math.nan  # _edge_frame_counts' rounded period, s, and counts
+        self._edge_frames_counts: tuple[int, ...] = ()
         self._fix_period = math.inf  # s between the last two fixes in a run (not a gap)
         # values derived from _nis and _scales, kept until those change (in mocap(), at a fused
         # fix and when a shadow gap closes) or a restore replaces them with the snapshot's own
@@ -1804,16 +1850,25 @@ class ConsistencyMonitor:
 
     def _edge_shape(self, horizon_s: float) -> float:
         """``(a + b h)^2`` at ``horizon_s`` s into a gap (:func:`edge_sensitivity` for the
-        fixes' period before it); 0 before two fixes in a run."""
+        fixes' period before it, over :meth:`_edge_shape_frames`); 0 before two fixes in a
+        run."""
         # to 0.1 ms, so that jittered frame times share edge_sensitivity's cached solutions
         period = round(self._fix_period, 4)
         if not math.isfinite(period) or period <= 0:
             return 0.0
         shadow = self._shadow.params
         a, b = edge_sensitivity(shadow.accelerometer_noise_density,
-                                shadow.mocap_position_noise, period,
-                                edge_frames(self.params.edge_s, period))
+                                shadow.mocap_position_noise, period, self._edge_shape_frames())
         return (a + b * horizon_s) ** 2
+
+    def _edge_shape_frames(self) -> int:
+        """Fixes an edge offset is taken to span (:meth:`_edge_shape`): those of the longest
+        span whose gap-start test is on (the filter follows a longer offset further: at 100 Hz
+        it carries 0.36 of a 3-frame one into the gap, 0.56 of a 5-frame one), else
+        ``edge_s``'s."""
+        counts = self._edge_frame_counts()
+        frames = [count for count, on in zip(counts, self._gap_start_on, strict=False) if on]
+        return max(frames) if frames else counts[0]
 
     def _gap_end(self, position: NDArray[np.float64], prior: FilterEstimate) -> None:
         """Keep the evidence of an accepted fix ending a real gap of ``_fix_horizon`` s (at most
@@ -1859,16 +1914,20 @@ class ConsistencyMonitor:
         :func:`edge_variance_needed` gives d^ against ``J^-1`` was far too small: d^ mostly
         lies inside J^-1's own 99 % ellipsoid), and switch the gap-start test on when the mean
         T of the last ``gap_end_window`` occlusions fails the windowed test high, off when it
-        is back to 3 (:func:`failing_high`). Unlike the fix ending a gap, this comes
+        is back to 3 (:func:`failing_high`). Each span, ``edge_s`` and the
+        ``longer_edges_s``, is tested over its own last fixes with its own signature, and
+        has its own window and switch (at ``edge_test_probability``): an offset on 5 frames
+        hardly shows in the last 3. Unlike the fix ending a gap, this comes
         ``settle_after_s`` into the gap, so the edge term can cover the rest of it."""
         kind, params = outcome.kind, self.params
         run, last = self._run_innovations, self._last_fix
-        frames = self._edge_frame_count()
+        counts = self._edge_frame_counts()
+        frames = max(counts, default=0)
         ends_gap = last is not None and reacquired_after_gap(t - last[0], params.settle_after_s)
         if run and ends_gap:
             # the run has ended in a real gap (a dropout shorter than settle_after_s is none)
-            if len(run) == run.maxlen:
-                self._test_gap_start(run)
+            if counts and len(run) >= min(counts):
+                self._test_gap_start(run, counts)
             run.clear()
         if frames == 0:  # the fixes' period is not known yet
             run.clear()
@@ -1887,43 +1946,58 @@ class ConsistencyMonitor:
             return  # occluded: the run waits to see whether this is a real gap
         run.clear()
 
-    def _test_gap_start(self, run: deque[tuple[NDArray[np.float64], NDArray[np.float64]]]
-                        ) -> None:
+    def _test_gap_start(self, run: deque[tuple[NDArray[np.float64], NDArray[np.float64]]],
+                        counts: tuple[int, ...]) -> None:
         """Test the last fixes before a real gap, ``run`` (y (3,) m, S (3, 3) m^2 each, oldest
-        first), for a common offset (:meth:`_gap_start`) and keep the result."""
+        first), for a common offset over each span's last ``counts`` fixes (those it holds;
+        :meth:`_gap_start`) and keep the results."""
         shadow, params = self._shadow.params, self.params
-        signature = edge_innovation_signature(shadow.accelerometer_noise_density,
-                                              shadow.mocap_position_noise,
-                                              self._edge_frames_period, len(run))
-        found = edge_offset_evidence([y for y, _ in run], [S for _, S in run], signature)
-        if found is None:
-            return
-        statistic, offset, covariance = found
         # against S times the NIS window's factor, as the gap ends are tested against the
         # scaled predictions: innovations too large at every fix (mocap noisier than
         # configured, a lever arm) are no edge (unscaled, T averaged 5-7 on clean data with a
         # lever arm and the edge term was on for 47 % of the rows)
         factor = max(1.0, self._nis_scale())
-        self._gap_start_statistic.append(statistic / factor)
-        self._gap_start_edge.append(max(0.0, (float(offset @ offset)
-                                              - factor * float(np.trace(covariance))) / 3.0))
+        statistics, edges = [], []
+        for count in counts:
+            found = None
+            if count <= len(run):
+                fixes = list(run)[len(run) - count:]
+                signature = edge_innovation_signature(shadow.accelerometer_noise_density,
+                                                      shadow.mocap_position_noise,
+                                                      self._edge_frames_period, count)
+                found = edge_offset_evidence([y for y, _ in fixes], [S for _, S in fixes],
+                                             signature)
+            if found is None:
+                statistics.append(math.nan)
+                edges.append(math.nan)
+                continue
+            statistic, offset, covariance = found
+            statistics.append(statistic / factor)
+            edges.append(max(0.0, (float(offset @ offset) - factor * float(np.trace(covariance)))
+                             / 3.0))
+        if all(math.isnan(value) for value in statistics):
+            return
+        self._gap_start_statistic.append(tuple(statistics))
+        self._gap_start_edge.append(tuple(edges))
         was_on = self._gap_start_on
-        self._gap_start_on = failing_high(self._gap_start_statistic, params.nis_probability,
-                                          was_on)
+        self._gap_start_on = tuple(
+            failing_high(_span_values(self._gap_start_statistic, span),
+                         params.edge_test_probability, on) for span, on in enumerate(was_on))
         self._edge_value = None
-        if self._gap_start_on != was_on:  # the scale table reads _gap_end_scale
+        if any(self._gap_start_on) != any(was_on):  # the scale table reads _gap_end_scale
             self._forget_derived(nis=False)
 
-    def _edge_frame_count(self) -> int:
-        """:func:`edge_frames` at the fixes' period rounded as in :meth:`_edge_shape`, 0 before
-        that period is known; computed again only when the rounded period changes (every frame
-        reads it)."""
+    def _edge_frame_counts(self) -> tuple[int, ...]:
+        """:func:`edge_frames` of ``edge_s`` and each of ``longer_edges_s`` at the fixes'
+        period rounded as in :meth:`_edge_shape`, () before that period is known; computed
+        again only when the rounded period changes (every frame reads them)."""
         period = round(self._fix_period, 4)
         if period != self._edge_frames_period:
             self._edge_frames_period = period
-            self._edge_frames_count = edge_frames(self.params.edge_s, period) \
-                if math.isfinite(period) and period > 0 else 0
-        return self._edge_frames_count
+            spans = (self.params.edge_s, *self.params.longer_edges_s)
+            self._edge_frames_counts = tuple(edge_frames(span, period) for span in spans) \
+                if math.isfinite(period) and period > 0 else ()
+        return self._edge_frames_counts
 
     def _gap_ends_mean_nis(self) -> float:
         """The mean NIS of the fixes that ended the last ``gap_end_window`` real gaps while the
@@ -1931,7 +2005,7 @@ class ConsistencyMonitor:
         said; or :meth:`_gap_start`: the fixes before the gaps were off, so the gaps'
         predictions are suspect and their ends measure by how much, before their own test has
         enough of them), else 0 (also before a gap has ended)."""
-        if not (self._edge_on or self._gap_start_on) or not self._gap_end_nis:
+        if not (self._edge_on or any(self._gap_start_on)) or not self._gap_end_nis:
             return 0.0
         return sum_mean(self._gap_end_nis)
 
@@ -1947,14 +2021,16 @@ class ConsistencyMonitor:
         :meth:`_gap_end`, and the fixes before the last occlusions show no offset,
         :meth:`_gap_start`); else the larger of the ``matching_quantile`` of the variances the
         gap ends needed (:func:`edge_variance_needed`) and that of the gap starts' estimates
-        (one quantile over both lists weighed their largest values less: up to 25 % below the
-        gap ends' own)."""
+        over ``edge_s`` and over each longer span whose test is on (one quantile over both
+        lists weighed their largest values less: up to 25 % below the gap ends' own)."""
         if self._edge_value is None:
             value = 0.0
-            if self._edge_on or self._gap_start_on:
+            if self._edge_on or any(self._gap_start_on):
                 quantile = self.params.matching_quantile
-                matched = [quantile_matching_scale(list(kept), quantile)
-                           for kept in (self._gap_end_edge, self._gap_start_edge) if kept]
+                kept = [list(self._gap_end_edge)] + [
+                    _span_values(self._gap_start_edge, span)
+                    for span, on in enumerate(self._gap_start_on) if span == 0 or on]
+                matched = [quantile_matching_scale(values, quantile) for values in kept if values]
                 value = max((scale for scale in matched if not math.isnan(scale)), default=0.0)
             self._edge_value = value
         return self._edge_value
@@ -2344,6 +2420,13 @@ class ConsistencyMonitor:
         if shadow is not None:
             self._shadow.restore(shadow)
 
+    def _gap_start_mean(self) -> float:
+        """The largest over the spans tested of the mean statistic T of the fixes before the
+        last ``gap_end_window`` occlusions (:meth:`_test_gap_start`), NaN before the first."""
+        means = [sum_mean(values) for span in range(len(self._gap_start_on))
+                 if (values := _span_values(self._gap_start_statistic, span))]
+        return max(means, default=math.nan)
+
     def report(self) -> MonitorReport:
         """What the monitor has found so far."""
         test = windowed_nis_test(list(self._nis), self.params.nis_probability)
@@ -2365,9 +2448,15 @@ class ConsistencyMonitor:
                              clock_offset_s=math.nan if clock is None else clock[0],
                              clock_offset_std_s=math.nan if clock is None else clock[1],
                              steps=self._step_count, edge_offset_std_m=math.sqrt(edge),
-                             gap_start_statistic=sum_mean(self._gap_start_statistic)
-                             if self._gap_start_statistic else math.nan,
+                             gap_start_statistic=self._gap_start_mean(),
                              impact_variance_scale=self._impact_scales.variance_scales())
+
+
+def _span_values(kept: deque[tuple[float, ...]], span: int) -> list[float]:
+    """The values of span ``span`` in ``kept`` (one tuple per occlusion, one value per span
+    tested: :meth:`ConsistencyMonitor._test_gap_start`), oldest first, without the NaN of
+    occlusions whose run was too short for it."""
+    return [values[span] for values in kept if not math.isnan(values[span])]
 
 
 _NO_Y: Final = np.zeros(3)
