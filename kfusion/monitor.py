@@ -1198,7 +1198,8 @@ class MonitorParameters:
             the body 0.7 mm off on the 5 frames before each occlusion (simulated random_reach,
             30 s, seeds 0 and 1): with ``edge_s`` alone the test's mean T was 3.06 and 2.62
             (no offset: about 3) and 2.5 % and 5.0 % of the rows beyond the 99 % bound; tested
-            over 50 ms, 8.3 and 6.9, 0.8 % and 2.4 %. Over 80 ms it fired on neither the 3-
+            over 50 ms too, 8.3 and 6.9, and 0.8 % and 2.4 % with the windows at 0.999 (0.5 %
+            and 0.7 % at ``edge_test_probability``). Over 80 ms it fired on neither the 3-
             nor the 5-frame offsets reliably, so the spans are few and short.
         edge_test_probability: two-sided probability of the windowed test of the fixes
             before occlusions (:meth:`ConsistencyMonitor._gap_start`; the NIS tests use
@@ -1214,7 +1215,10 @@ class MonitorParameters:
             (``benchmarks/bound_coverage.py``, 47 recordings) 0.99 changed nothing and 0.95
             turned the edge term on in 3 simulated recordings (median bound / error 2.0-2.1
             -> 2.4-2.6 kalman, 2.1 -> 2.8-3.3 smoother; pooled 3.18 -> 3.20 and 2.72 -> 2.77),
-            in none of BROAD's.
+            in none of BROAD's. The cost is larger than that: a review found 3 of 40 clean
+            simulated recordings where it fired after 1-3 occlusions and, switching off only
+            when the window's mean is back to 3, stayed on for most of the recording, every
+            tracked row's bound 2.3-2.8x wider.
         block_fixes: consecutive accepted fixes whose innovations the block test sums
             (:func:`block_nis`; ``nis_window // block_fixes`` blocks in its window, at least
             one). The fused position averages the last few fixes (R / P+ of them, about 4 at
@@ -1294,9 +1298,11 @@ class MonitorParameters:
         for name in ("nis_probability", "confidence", "matching_quantile", "step_probability",
                      "edge_test_probability"):
             value = getattr(self, name)
-            if not 0.0 < value < 1.0 and not (name == "matching_quantile" and value == 1.0):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or (not 0.0 < value < 1.0
+                        and not (name == "matching_quantile" and value == 1.0)):
                 raise ValueError(f"MonitorParameters.{name}: expected a probability in (0, 1), "
-                                 f"got {value!r}")
+                                 f"got {short_repr(value)}")
         for name in ("horizon_edges_s", "holdout_edges_s"):
             edges = tuple(float(edge) for edge in getattr(self, name))
             if not edges or any(b <= a for a, b in zip(edges, edges[1:], strict=False)) \
@@ -1310,7 +1316,7 @@ class MonitorParameters:
                or not math.isfinite(span) for span in longer) \
                 or any(b <= a for a, b in zip((self.edge_s, *longer), longer, strict=False)):
             raise ValueError(f"MonitorParameters.longer_edges_s: expected increasing times "
-                             f"longer than edge_s ({self.edge_s}), got "
+                             f"longer than edge_s ({self.edge_s}; () tests edge_s alone), got "
                              f"{short_repr(self.longer_edges_s)}")
         object.__setattr__(self, "longer_edges_s", tuple(float(span) for span in longer))
         if self.shadow_period_s < self.shadow_window_s:

@@ -468,7 +468,7 @@ class TrackerSnapshot:
     _state: Any = field(repr=False, compare=False)
 
 
-SNAPSHOT_FORMAT: Final = 9
+SNAPSHOT_FORMAT: Final = 10
 """Version of the state a :class:`TrackerSnapshot` holds (part of its configuration): raised
 whenever the estimator's or the monitor's state changes shape, so that a snapshot pickled by
 another version of kfusion is refused by :meth:`Tracker.restore` with a ValueError rather than
@@ -479,7 +479,8 @@ fixes before each occlusion; 7: the marker layout's residuals, ``KalmanSnapshot.
 the orientation innovations' mean, ``OrientationState.innovation_mean``, and the compiled
 engine's orientation array of ``ORIENTATION_SIZE``; 9: the time of the last impact,
 ``KalmanSnapshot.last_impact_t`` and the compiled scalar ``LAST_IMPACT``, and the monitor's
-scales for gaps near impacts)."""
+scales for gaps near impacts; 10: the test of the fixes before each occlusion per span,
+``MonitorParameters.longer_edges_s``)."""
 
 _NUMERICAL_ERRORS: Final = (ArithmeticError, ValueError, np.linalg.LinAlgError)
 """What the estimator's maths may raise on overflowing numbers (math.sin(inf), singular S)."""

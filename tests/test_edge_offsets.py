@@ -453,6 +453,13 @@ def test_longer_edge_spans_must_increase_past_edge_s(longer):
         MonitorParameters(longer_edges_s=longer)
 
 
+@pytest.mark.parametrize("probability", [None, "0.95", [0.95], 1j, True, 0.0, 1.0, math.nan])
+def test_the_edge_test_probability_must_be_a_probability(probability):
+    with pytest.raises(ValueError, match="MonitorParameters.edge_test_probability: expected a "
+                                         "probability"):
+        MonitorParameters(edge_test_probability=probability)
+
+
 def test_the_spans_tested_are_edge_s_and_the_longer_ones():
     params = MonitorParameters(edge_s=0.02, longer_edges_s=[0.04, 0.07])
     assert params.longer_edges_s == (0.04, 0.07)
