@@ -357,8 +357,9 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
 
 
 EDGE_DOUBLINGS: Final = 3
-"""How many times :func:`edge_holdout` may double the fixes it hides before each gap (8 times
-``edge_frames``: 0.24 s at 100 Hz)."""
+"""How many times :func:`edge_holdout` may double the fixes it hides before each gap, from the
+first span that disagreed (8 times it: 0.24 s at 100 Hz from ``edge_s``, 0.64 s from the
+80 ms of ``longer_edges_s``)."""
 
 
 def edge_rows(t: NDArray[np.float64], fixed: NDArray[np.bool_], monitor: MonitorParameters,
