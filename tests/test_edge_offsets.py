@@ -205,7 +205,9 @@ def test_the_smoother_holds_the_edge_offsets_it_finds_by_hiding_them():
     recording = faults.occlusion_edge_offsets(faults.Streams.of(simulation.recording)).recording
     params = resolve_parameters(recording, None, {})
     edge, fixes = edge_holdout(recording, params, MonitorParameters())
-    assert fixes == 3  # 30 ms at 100 Hz: the offsets' own length
+    # 30 ms at 100 Hz, the offsets' own length, disagree; hiding 6 the outer 3 agree but the
+    # whole 6 still disagree, so the cover takes the next doubling too (edge_holdout)
+    assert fixes == 6
     # an offset d needs sigma^2 of about |d|^2 / F^-1_chi2(3)(0.99) = (1.5 mm)^2 / 11.3 for the
     # 99 % ellipsoid to reach it: sigma about 0.45 mm (plus the noise it rides on)
     assert 0.0003 < math.sqrt(edge) < 0.0015
@@ -302,7 +304,7 @@ def test_the_smoother_finds_offsets_longer_than_edge_s():
                                               0.0015, 10).recording
     params = resolve_parameters(recording, None, {})
     edge, fixes = edge_holdout(recording, params, MonitorParameters())
-    assert edge > 0 and fixes in (6, 12)  # 3 doubled once or twice: 10 lies between
+    assert edge > 0 and 10 <= fixes <= 24  # 3 doubled until the hold-out covers the 10
     run = run_smoother(recording)
     truth = simulation.truth.position
     usable = run.result.status != "lost"
@@ -324,7 +326,7 @@ def test_the_smoother_hides_the_longer_spans_when_edge_s_agrees():
         params = resolve_parameters(recording, None, {})
         assert edge_holdout(recording, params, MonitorParameters(longer_edges_s=())) == (0.0, 3)
         edge, fixes = edge_holdout(recording, params, MonitorParameters())
-        assert edge > 0 and fixes == 5
+        assert edge > 0 and fixes in (5, 10)  # 5 disagree; 10 if all 10 still do
         wrong, _ = rows_beyond_bound(run_smoother(recording).result, simulation.truth.position)
         assert wrong <= 0.01, (seed, wrong)
 
