@@ -1199,8 +1199,9 @@ class MonitorParameters:
             30 s, seeds 0 and 1): with ``edge_s`` alone the test's mean T was 3.06 and 2.62
             (no offset: about 3) and 2.5 % and 5.0 % of the rows beyond the 99 % bound; tested
             over 50 ms too, 8.3 and 6.9, and 0.8 % and 2.4 % with the windows at 0.999 (0.5 %
-            and 0.7 % at ``edge_test_probability``). Over 80 ms alone it fired on neither the
-            3- nor the 5-frame offsets reliably; as a third span it found 0.7 mm on 8 frames
+            and 0.7 % at ``edge_test_probability``, 0.5 % and 0.6 % with 80 ms too). Over
+            80 ms alone it fired on neither the 3- nor the 5-frame offsets reliably; as a
+            third span it found 0.7 mm on 8 frames
             (seeds 0-4: 4.45 % -> 1.55 % beyond, mean) and turned on in no more of 40 clean
             seeds.
         edge_test_probability: two-sided probability of the windowed test of the fixes
@@ -1212,7 +1213,8 @@ class MonitorParameters:
             edge term on for a while), a miss the invariant, so the test is looser than the
             NIS tests. ``benchmarks/failsafe.py --seeds 5 --duration 30``, body 0.7 mm off on
             the 5 frames before each occlusion, rows beyond the 99 % bound (tracker; kalman
-            the same within 0.1): 0.999: 3.5 % (simulated), 2.5 % (BROAD 21 and 06); 0.99:
+            the same within 0.1; spans 30 and 50 ms): 0.999: 3.5 % (simulated), 2.5 % (BROAD
+            21 and 06); 0.99:
             0.9 % and 0.7 %; 0.95: 0.4 % and 0.5 %. On clean data
             (``benchmarks/bound_coverage.py``, 47 recordings) 0.99 changed nothing and 0.95
             turned the edge term on in 3 simulated recordings (median bound / error 2.0-2.1
@@ -1312,18 +1314,29 @@ class MonitorParameters:
                 raise ValueError(f"MonitorParameters.{name}: expected increasing positive "
                                  f"times, got {getattr(self, name)!r}")
             object.__setattr__(self, name, edges)
-        longer = tuple(self.longer_edges_s) \
-            if isinstance(self.longer_edges_s, (tuple, list)) else (math.nan,)
-        if any(isinstance(span, bool) or not isinstance(span, (int, float))
-               or not math.isfinite(span) for span in longer) \
-                or any(b <= a for a, b in zip((self.edge_s, *longer), longer, strict=False)):
+        if not _spans_after(self.edge_s, self.longer_edges_s):
             raise ValueError(f"MonitorParameters.longer_edges_s: expected increasing times "
                              f"longer than edge_s ({self.edge_s}; () tests edge_s alone), got "
                              f"{short_repr(self.longer_edges_s)}")
-        object.__setattr__(self, "longer_edges_s", tuple(float(span) for span in longer))
+        object.__setattr__(self, "longer_edges_s",
+                           tuple(float(span) for span in self.longer_edges_s))
         if self.shadow_period_s < self.shadow_window_s:
             raise ValueError(f"MonitorParameters.shadow_period_s: expected >= shadow_window_s "
                              f"({self.shadow_window_s}), got {self.shadow_period_s}")
+
+
+def _spans_after(first: float, spans: object) -> bool:
+    """True when ``spans`` is a tuple or list of finite real numbers (s), each longer than
+    the one before, the first longer than ``first``."""
+    if not isinstance(spans, (tuple, list)):
+        return False
+    previous = first
+    for span in spans:
+        if isinstance(span, bool) or not isinstance(span, (int, float)) \
+                or not math.isfinite(span) or span <= previous:
+            return False
+        previous = span
+    return True
 
 
 def held_at_frame(peak: float, variance: NDArray[np.float64]) -> tuple[float, float]:
