@@ -427,7 +427,7 @@ def edge_holdout(recording: Recording, params: KalmanParameters, monitor: Monito
     :data:`EDGE_DOUBLINGS` times; when the outer half agrees but the whole hold-out still
     disagrees, the hold-out's length is returned (an offset a little longer than the span shows
     in few outer fixes, deep in the hold-out where the smoothed point is loose: 0.7 mm on 10
-    frames, seeds 0-4, 1.71 % of the rows beyond the 99 % bound returning the span, 0.91 %
+    frames, seeds 0-4, 1.80 % of the rows beyond the 99 % bound returning the span, 0.91 %
     returning the hold-out; 1 mm on 9 frames 0.49 % -> 0.09 %; a 3-frame offset is covered
     over 6, its gap rows' median bound / error 4.6 -> 5.0 for 0.7 mm). The variance is the
     ``matching_quantile`` of
