@@ -1324,6 +1324,12 @@ class MonitorParameters:
             raise ValueError(f"MonitorParameters.shadow_period_s: expected >= shadow_window_s "
                              f"({self.shadow_window_s}), got {self.shadow_period_s}")
 
+    @property
+    def edge_spans_s(self) -> tuple[float, ...]:
+        """The spans (s, increasing) over which the fixes before each occlusion are tested
+        for an offset: ``edge_s``, then ``longer_edges_s``."""
+        return (self.edge_s, *self.longer_edges_s)
+
 
 def _spans_after(first: float, spans: object) -> bool:
     """True when ``spans`` is a tuple or list of finite real numbers (s), each longer than
@@ -1587,7 +1593,7 @@ class ConsistencyMonitor:
             deque(maxlen=self.params.gap_end_window)
         self._gap_start_edge: deque[tuple[float, ...]] = deque(maxlen=self.params.gap_end_window)
         # per span: its test failed high, not yet back to 3 (_gap_start)
-        self._gap_start_on = (False,) * (1 + len(self.params.longer_edges_s))
+        self._gap_start_on = (False,) * len(self.params.edge_spans_s)
         self._run_innovations: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = \
             deque(maxlen=1)
         self._edge_frames_period = math.nan  # _edge_frame_counts' rounded period, s, and counts
@@ -1943,11 +1949,11 @@ class ConsistencyMonitor:
         kind, params = outcome.kind, self.params
         run, last = self._run_innovations, self._last_fix
         counts = self._edge_frame_counts()
-        frames = max(counts, default=0)
+        frames = counts[-1] if counts else 0  # the spans increase: the last is the longest
         ends_gap = last is not None and reacquired_after_gap(t - last[0], params.settle_after_s)
         if run and ends_gap:
             # the run has ended in a real gap (a dropout shorter than settle_after_s is none)
-            if counts and len(run) >= min(counts):
+            if counts and len(run) >= counts[0]:
                 self._test_gap_start(run, counts)
             run.clear()
         if frames == 0:  # the fixes' period is not known yet
@@ -1979,10 +1985,11 @@ class ConsistencyMonitor:
         # lever arm and the edge term was on for 47 % of the rows)
         factor = max(1.0, self._nis_scale())
         statistics, edges = [], []
+        kept = list(run)
         for count in counts:
             found = None
-            if count <= len(run):
-                fixes = list(run)[len(run) - count:]
+            if count <= len(kept):
+                fixes = kept[len(kept) - count:]
                 signature = edge_innovation_signature(shadow.accelerometer_noise_density,
                                                       shadow.mocap_position_noise,
                                                       self._edge_frames_period, count)
@@ -2015,8 +2022,8 @@ class ConsistencyMonitor:
         period = round(self._fix_period, 4)
         if period != self._edge_frames_period:
             self._edge_frames_period = period
-            spans = (self.params.edge_s, *self.params.longer_edges_s)
-            self._edge_frames_counts = tuple(edge_frames(span, period) for span in spans) \
+            self._edge_frames_counts = tuple(edge_frames(span, period)
+                                             for span in self.params.edge_spans_s) \
                 if math.isfinite(period) and period > 0 else ()
         return self._edge_frames_counts
 

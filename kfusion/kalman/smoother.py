@@ -439,7 +439,7 @@ def edge_holdout(recording: Recording, params: KalmanParameters, monitor: Monito
                                        monitor.settle_after_s)
     if not period > 0 or not (before >= 0).any():
         return 0.0, 0
-    spans = [edge_frames(span, period) for span in (monitor.edge_s, *monitor.longer_edges_s)]
+    spans = [edge_frames(span, period) for span in monitor.edge_spans_s]
     for frames in sorted(set(spans)):
         _, nis, needed = _hidden_edge_fixes(recording, params, monitor, before, frames,
                                             measurement, engine)
