@@ -116,17 +116,23 @@ def smoother_bytes_per_row(seconds: float) -> tuple[int, int, int, int]:
     same with the output maps). Kept: one x and P per row (the backward pass overwrites the
     filtered state with the smoothed one, in place), the forward filter's point estimates
     (position and variance per axis: the filtered rows' result), and the packed states the
-    forward pass saves every SAVE_EVERY rows (the backward pass recomputes the per-row
-    predictions and transitions from them block by block). The output maps (H, c per row) turn
+    forward pass saves every SAVE_EVERY rows and each row's packed prediction (x, the upper
+    triangle of P and the transition product's 19 free entries), which the backward pass
+    reads (measured on the forward kernel's run). The output maps (H, c per row) turn
     states into points; they are counted in the last number."""
     from kfusion.kalman import compiled
+    from kfusion.kalman.batch import compiled_rows, make_fusion, resolve_parameters
 
-    run = run_smoother(recording(seconds), monitor=None, engine="compiled")
+    data = recording(seconds)
+    run = run_smoother(data, monitor=None, engine="compiled")
     assert run.output_matrix is not None
+    forward = compiled_rows(data, make_fusion(data, resolve_parameters(data, None, {})),
+                            smoothing=True)
+    assert forward is not None and forward[1].replay is not None
     rows, n = run.x.shape
     state = 8 * (n + n * n)
     kept = run.x.nbytes + run.P.nbytes + 2 * run.filtered.position.nbytes
-    kept += compiled.saved_bytes_per_row(rows, n) * rows
+    kept += compiled.kept_bytes(forward[1].replay)
     maps = run.output_matrix.nbytes + 8 * 3 * rows
     return n, state, int(round(kept / rows)), int(round((kept + maps) / rows))
 
@@ -251,8 +257,10 @@ def main() -> None:
                      "before the run)"))
     n, state, kept, with_maps = smoother_bytes_per_row(seconds)
     rows.append((f"compiled smoother memory per row ({n} states): x, P, filtered points, "
-                 "saved states", f"{kept} bytes ({with_maps} with the output maps H, c)",
-                 f"{kept / state:.3f}x the state's {state} bytes (x, P)"))
+                 "saved states, packed predictions",
+                 f"{kept} bytes ({with_maps} with the output maps H, c)",
+                 f"{kept / state:.3f}x the state's {state} bytes (x, P); "
+                 f"{with_maps / state:.2f}x with the maps"))
     rows.append(("import kfusion.tracker (no numba)", f"{import_time() * 1e3:.0f} ms", ""))
     if not args.quick:
         numba_import, cold, warm = cold_start()

@@ -353,24 +353,54 @@ def test_position_update_equals_the_joseph_form(size: int) -> None:
         np.testing.assert_array_equal(P, P.T)
 
 
+def layout_config(size: int) -> np.ndarray:
+    """A kernel config holding only the state layout of ``size`` states (9 or 12)."""
+    from kfusion.kalman.layout import layout_for
+
+    layout = layout_for(size == 12)
+    config = np.zeros(compiled.CONFIG_SIZE)
+    config[[compiled.C_POSITION, compiled.C_VELOCITY, compiled.C_BIAS]] = (
+        layout.start("position"), layout.start("velocity"), layout.start("bias"))
+    return config
+
+
+def imu_transition(size: int, dt: float, rng: np.random.Generator) -> np.ndarray:
+    """``I + [[0, dt I, F_pb], [0, 0, F_vb], 0]`` with random bias blocks of the sizes of
+    dt^2 and dt (:func:`kfusion.kalman.compiled.interval_matrices`' form)."""
+    F = np.eye(size)
+    F[0:3, 3:6] = dt * np.eye(3)
+    F[0:3, 6:9] = rng.normal(size=(3, 3)) * dt * dt
+    F[3:6, 6:9] = rng.normal(size=(3, 3)) * dt
+    return F
+
+
 @pytest.mark.parametrize("size", [9, 12])
 def test_rts_row_equals_the_numpy_step(size: int) -> None:
-    """The compiled RTS step (allocation-free, its own Gaussian elimination) against
-    ``smoother.rts_step`` (numpy's solve and products), on covariances spanning 12 decades
-    (position to bias), and against ``np.linalg.solve`` for the elimination itself."""
+    """The compiled RTS step (allocation-free, its own Gaussian elimination, the prediction
+    packed) against ``smoother.rts_step`` (numpy's solve and products), on covariances spanning
+    12 decades (position to bias), and against ``np.linalg.solve`` for the elimination
+    itself."""
     from kfusion.kalman.smoother import rts_step
 
     rng = np.random.default_rng(7)
     scales = np.geomspace(1e-6, 1.0, size)
-    work = np.empty((5, size, size))
+    work = np.empty((7, size, size))
+    config = layout_config(size)
+    packed_x = np.empty((1, size))
+    packed_P = np.empty((1, compiled.triangle_size(size)))
+    packed_transition = np.empty((1, compiled.TRANSITION_SIZE))
     for _ in range(20):
         A = rng.normal(size=(4, size, size)) * scales[:, None]
         P = A @ A.transpose(0, 2, 1) + np.eye(size) * 1e-14
+        P = 0.5 * (P + P.transpose(0, 2, 1))
         x = rng.normal(size=(3, size))
-        transition = np.eye(size) + 0.01 * rng.normal(size=(size, size))
+        transition = imu_transition(size, 0.01, rng) @ imu_transition(size, 0.005, rng)
         expected_x, expected_P = rts_step(x[0], P[0], x[2], P[2], transition, x[1], P[1])
         rows_x, rows_P = x[:2].copy(), P[:2].copy()
-        compiled.rts_row(rows_x, rows_P, 0, x[2:3], P[2:3], transition[None], 0, work)
+        assert compiled.pack_prediction(x[2], P[2], transition, config, packed_x[0],
+                                        packed_P[0], packed_transition[0])
+        compiled.rts_row(rows_x, rows_P, 0, packed_x, packed_P, packed_transition, 0, config,
+                         work)
         np.testing.assert_allclose(rows_x[0], expected_x, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(rows_P[0], expected_P, rtol=1e-6,
                                    atol=1e-9 * np.abs(expected_P).max())
@@ -403,24 +433,73 @@ def test_status_codes_follow_the_status_rule() -> None:
 
 
 @pytest.mark.parametrize("case", ["gaps_lever_arm_states", "gated_and_reacquired", "reset"])
-def test_smoother_recomputes_the_same_bits_from_saved_states(case: str,
-                                                            monkeypatch: pytest.MonkeyPatch
-                                                            ) -> None:
-    """The compiled backward pass runs the forward loop again block by block from saved states
-    instead of keeping each row's prediction: blocks of 7 rows (many boundaries, inside and
-    across segments) give the bits of one block holding the whole recording."""
+def test_kept_and_recomputed_predictions_give_the_same_bits(case: str,
+                                                             monkeypatch: pytest.MonkeyPatch
+                                                             ) -> None:
+    """The compiled backward pass reads each row's prediction as the forward kernel kept it
+    (packed: P's upper triangle and the transition product's free entries), or, for a forward
+    pass that kept only states every SAVE_EVERY rows, runs the forward loop again block by block
+    to recompute them. Kept, recomputed in blocks of 7 rows (many boundaries, inside and across
+    segments) and recomputed in one block give the same bits."""
     from kfusion.kalman import run_smoother
+    from kfusion.kalman.batch import compiled_rows, make_fusion, resolve_parameters
+    from kfusion.kalman.smoother import initialised_segments
 
     build, overrides = CASES[case]
     recording = build()
-    monkeypatch.setattr(compiled, "SAVE_EVERY", len(recording.mocap) + 1)
-    whole = run_smoother(recording, monitor=None, engine="compiled", **overrides)
-    monkeypatch.setattr(compiled, "SAVE_EVERY", 7)
-    blocks = run_smoother(recording, monitor=None, engine="compiled", **overrides)
-    assert np.isfinite(whole.x).any(axis=1).sum() > 100
-    np.testing.assert_array_equal(blocks.x, whole.x)
-    np.testing.assert_array_equal(blocks.P, whole.P)
-    np.testing.assert_array_equal(blocks.result.position, whole.result.position)
+    kept = run_smoother(recording, monitor=None, engine="compiled", **overrides)
+    assert np.isfinite(kept.x).any(axis=1).sum() > 100
+    fusion = make_fusion(recording, resolve_parameters(recording, None, overrides))
+    for save_every in (len(recording.mocap) + 1, 7):
+        monkeypatch.setattr(compiled, "SAVE_EVERY", save_every)
+        forward = compiled_rows(recording, fusion, smoothing=True)
+        assert forward is not None and forward[1].replay is not None
+        recorder, run = forward
+        replay = run.replay.without_predictions()
+        assert replay.predictions is None
+        segments = initialised_segments(recorder.outcome.astype(str), recorder.initialised)
+        compiled.smooth_in_place(replay, recorder.x, recorder.P, segments)
+        np.testing.assert_array_equal(recorder.x, kept.x)
+        np.testing.assert_array_equal(recorder.P, kept.P)
+
+
+def test_a_prediction_packs_and_unpacks_to_the_same_bits() -> None:
+    """pack_prediction keeps P's upper triangle and Phi's free entries (T, F_pb, F_vb) and
+    unpack_prediction rebuilds them bit for bit, here for a product of two hand-built IMU
+    transitions on the 12-state layout (lever-arm rows and columns are the identity's); an
+    asymmetric P, or a Phi outside that form, is refused (False, NaN time): the backward pass
+    does not smooth across such a row."""
+    from kfusion.kalman.layout import LEVER_LAYOUT
+
+    n = LEVER_LAYOUT.size
+    p, v, b = (LEVER_LAYOUT.start(name) for name in ("position", "velocity", "bias"))
+    lever = LEVER_LAYOUT.start("lever_arm")
+    config = layout_config(n)
+    rng = np.random.default_rng(3)
+    Phi = imu_transition(n, 0.005, rng) @ imu_transition(n, 0.004, rng)
+    A = rng.normal(size=(n, n))
+    P = A @ A.T
+    P = 0.5 * (P + P.T)
+    x = rng.normal(size=n)
+    out_x = np.empty(n)
+    out_P = np.empty(compiled.triangle_size(n))
+    out_transition = np.empty(compiled.TRANSITION_SIZE)
+    assert compiled.pack_prediction(x, P, Phi, config, out_x, out_P, out_transition)
+    assert out_transition[0] == Phi[p, v] == 0.005 + 0.004
+    full_P, full_Phi = np.empty((n, n)), np.empty((n, n))
+    compiled.unpack_prediction(out_P, out_transition, config, full_P, full_Phi)
+    np.testing.assert_array_equal(out_x, x)
+    np.testing.assert_array_equal(full_P, P)
+    np.testing.assert_array_equal(full_Phi, Phi)
+    lopsided = P.copy()
+    lopsided[0, 1] += 1e-12
+    assert not compiled.pack_prediction(x, lopsided, Phi, config, out_x, out_P, out_transition)
+    assert math.isnan(out_transition[0])
+    for i, j in ((p, lever), (lever, p), (v, p), (p, v + 1), (b, b)):
+        other = Phi.copy()
+        other[i, j] += 1e-3
+        assert not compiled.pack_prediction(x, P, other, config, out_x, out_P, out_transition)
+        assert math.isnan(out_transition[0])
 
 
 def test_compiled_predict_checks_every_input_form() -> None:

@@ -655,20 +655,21 @@ def compiled_rows(recording: Recording, fusion: KalmanFusion, *, smoothing: bool
 
 
 def monitored_kernel_rows(recording: Recording, params: KalmanParameters,
-                          monitor: MonitorParameters
+                          monitor: MonitorParameters, smoothing: bool = False
                           ) -> tuple[_RowRecorder, ConsistencyMonitor, Any] | None:
     """The per-row arrays of :func:`process_recording` with the consistency monitor on the
     compiled engine, in two passes (:func:`kfusion.kalman.monitored.monitored_rows`: the
     whole-loop kernel, then the monitor's bookkeeping, the same bits), the monitor and the
-    smoother's :class:`kfusion.kalman.compiled.Replay`. None when the kernel cannot run the
-    recording (the caller runs it event by event)."""
+    smoother's :class:`kfusion.kalman.compiled.Replay` (with each row's packed prediction when
+    ``smoothing``). None when the kernel cannot run the recording (the caller runs it event by
+    event)."""
     from kfusion.kalman.monitored import monitored_rows  # numba loads here
 
     inputs = kernel_inputs(recording, params.imu_latency_s)
     if inputs is None:
         return None
     return monitored_rows(recording, params, monitor, make_fusion(recording, params), inputs,
-                          _RowRecorder)
+                          _RowRecorder, smoothing)
 
 
 def kernel_inputs(recording: Recording, latency_s: float) -> tuple[NDArray[Any], ...] | None:

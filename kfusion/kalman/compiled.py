@@ -11,9 +11,11 @@ agree to rounding (tests/test_compiled_engine.py: within 1e-9 m, same outcomes a
 The hot path allocates nothing per event: the predict forms ``F P F^T`` from F's blocks
 (:func:`structured_predict`), the update uses a 3x3 adjugate inverse and the expanded Joseph
 form (:func:`position_update`); the general forms (:func:`covariance_predict`,
-:func:`covariance_update`) are kept as their cross-check. The smoother's backward pass
-(:func:`smooth_rows`) recomputes the per-row predictions from states saved every
-:data:`SAVE_EVERY` rows instead of keeping them.
+:func:`covariance_update`) are kept as their cross-check. The smoother's forward pass keeps
+each row's prediction packed (:func:`pack_prediction`: P's upper triangle and the transition
+product's 19 free entries), and its backward pass (:func:`smooth_rows`) reads them; a forward
+pass run step by step keeps states every :data:`SAVE_EVERY` rows instead, from which the
+backward pass recomputes the predictions with the same bits.
 
 State, in flat float arrays (numba compiles plain arrays best):
 
@@ -1266,12 +1268,14 @@ def filter_events(stream, index, begin, end, imu_t, accelerometer, gyroscope, im
     orientation's angle variance and the time of the last impact (``LAST_IMPACT``) after each
     row's frame.
 
-For the smoother (``out_transition`` with rows; empty (0, n, n) arrays otherwise) it also
-keeps per row the prediction the row's fix was fused into (the filtered state where none
-was) and the product of the transitions since the previous row. With ``save_every`` > 0 it
-saves the state after every ``save_every``-th row (rows ``save_every - 1``, ``2 save_every -
-1``, ...) in ``saved_states`` and the next event in ``saved_events``: the smoother's backward
-pass runs the loop again from there (:func:`smooth_rows`)."""
+For the smoother (``out_transition`` with rows; empty arrays otherwise) it also keeps per
+row the prediction the row's fix was fused into (the filtered state where none was) and the
+product of the transitions since the previous row, packed (:func:`pack_prediction`:
+``out_x_predicted`` (m, n), ``out_P_predicted`` (m, n (n + 1) / 2), ``out_transition`` (m,
+TRANSITION_SIZE)). With ``save_every`` > 0 it saves the state after every ``save_every``-th
+row (rows ``save_every - 1``, ``2 save_every - 1``, ...) in ``saved_states`` and the next
+event in ``saved_events``: a backward pass without the kept predictions runs the loop again
+from there (:func:`smooth_rows`)."""
     size = out_x.shape[1]
     x, P, orientation, scalars, prior_x, prior_P = state_views(state, size)
     smoothing = out_transition.shape[0] > 0
@@ -1323,15 +1327,97 @@ pass runs the loop again from there (:func:`smooth_rows`)."""
             if out_angle_variance.shape[0] > 0:
                 out_angle_variance[out] = orientation[7]
             if smoothing:
-                out_x_predicted[out] = prior_x if fused else x
-                out_P_predicted[out] = prior_P if fused else P
-                out_transition[out] = interval
+                pack_prediction(prior_x if fused else x, prior_P if fused else P, interval,
+                                config, out_x_predicted[out], out_P_predicted[out],
+                                out_transition[out])
         if smoothing:
             interval[:, :] = np.eye(size)
         if save_every > 0 and (row + 1) % save_every == 0:
             saved_states[(row + 1) // save_every - 1] = state
             saved_events[(row + 1) // save_every - 1] = event + 1
     return -1
+
+
+TRANSITION_SIZE: Final = 19
+"""Length of a packed transition product (:func:`pack_prediction`): the p-v time (1), F_pb
+(9) and F_vb (9), row-major."""
+
+
+@njit(cache=True)
+def triangle_size(n):
+    """Length of a packed symmetric (n, n) matrix: its upper triangle, ``n (n + 1) / 2``."""
+    return n * (n + 1) // 2
+
+
+@njit(cache=True)
+def pack_prediction(x, P, interval, config, out_x, out_P, out_transition):
+    """Keep one row's prediction for the smoother in about 0.8 of an (x, P) (the smoother's
+    memory target is 2 (x, P) per row): ``out_x`` (n,) = x; ``out_P`` (n (n + 1) / 2,) = the
+    upper triangle of the symmetric P, row by row; ``out_transition`` (TRANSITION_SIZE,) = the
+    product of the transitions since the previous row, which is the identity except its
+    position-velocity time T (T I), its position-bias block F_pb and its velocity-bias block
+    F_vb (each transition is ``I + [[0, dt I, F_pb], [0, 0, F_vb], 0]``:
+    :func:`transition_times`, :func:`advance_without_imu`; products of such keep the form)::
+
+        Phi = I + [[0, T I, F_pb], [0, 0, F_vb], 0]
+    Returns False, with ``out_transition[0]`` NaN (the smoother does not smooth across the
+    row: :func:`rts_row`'s caller), where P is not exactly symmetric or Phi is not exactly of
+    that form (a non-finite product): then :func:`unpack_prediction` would not give the bits
+    back."""
+    n = x.shape[0]
+    p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
+    out_x[:] = x
+    exact = True
+    k = 0
+    for i in range(n):
+        for j in range(i, n):
+            out_P[k] = P[i, j]
+            k += 1
+            if not (P[j, i] == P[i, j] or (math.isnan(P[i, j]) and math.isnan(P[j, i]))):
+                exact = False
+    time = interval[p, v]
+    out_transition[0] = time
+    for i in range(3):
+        for j in range(3):
+            out_transition[1 + 3 * i + j] = interval[p + i, b + j]
+            out_transition[10 + 3 * i + j] = interval[v + i, b + j]
+    for i in range(n):
+        for j in range(n):
+            expected = 1.0 if i == j else 0.0
+            row_p, row_v = i - p, i - v
+            if 0 <= row_p < 3 and j == v + row_p:
+                expected = time
+            elif 0 <= row_p < 3 and 0 <= j - b < 3:
+                continue
+            elif 0 <= row_v < 3 and 0 <= j - b < 3:
+                continue
+            if interval[i, j] != expected:
+                exact = False
+    if not exact:
+        out_transition[0] = math.nan
+    return exact
+
+
+@njit(cache=True)
+def unpack_prediction(packed_P, packed_transition, config, P, transition):
+    """The full prediction covariance P (n, n) and transition product (n, n), in place, from
+    :func:`pack_prediction`'s forms: the same bits (up to the sign of exact zeros)."""
+    n = P.shape[0]
+    p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
+    k = 0
+    for i in range(n):
+        for j in range(i, n):
+            P[i, j] = packed_P[k]
+            P[j, i] = packed_P[k]
+            k += 1
+    for i in range(n):
+        for j in range(n):
+            transition[i, j] = 1.0 if i == j else 0.0
+    for i in range(3):
+        transition[p + i, v + i] = packed_transition[0]
+        for j in range(3):
+            transition[p + i, b + j] = packed_transition[1 + 3 * i + j]
+            transition[v + i, b + j] = packed_transition[10 + 3 * i + j]
 
 
 @njit(cache=True)
@@ -1379,25 +1465,28 @@ def solve_into(A, B, out, work):
 
 
 @njit(cache=True)
-def rts_row(x, P, k, x_predicted, P_predicted, transitions, j, work):
+def rts_row(x, P, k, x_predicted, P_predicted, transitions, j, config, work):
     """One RTS backward step (:func:`kfusion.kalman.smoother.rts_step`) in place on row k of
     ``x`` (m, n) and ``P`` (m, n, n), which hold its filtered state and become its smoothed one,
     from row k + 1 (smoothed) and the prediction of row k + 1 from row k, ``x_predicted[j]``,
-    ``P_predicted[j]``, with the transitions' product ``transitions[j]``::
+    ``P_predicted[j]``, with the transitions' product ``transitions[j]`` (packed:
+    :func:`pack_prediction`)::
 
         C_k   = P_k Phi_{k+1}^T P_{k+1|k}^-1    (solved: C^T = P_{k+1|k}^-1 Phi P_k)
         x_k^s = x_k + C_k (x_{k+1}^s - x_{k+1|k})
         P_k^s = P_k + C_k (P_{k+1}^s - P_{k+1|k}) C_k^T,  symmetrised
-    ``work`` (5, n, n) scratch. No allocation (:func:`solve_into`, :func:`matmul_into`):
+    ``work`` (7, n, n) scratch. No allocation (:func:`solve_into`, :func:`matmul_into`):
     numpy's solve and the products' temporaries took about 3 of a row's 3.2 us, now 1.9."""
     n = x.shape[1]
     product, C_transposed, difference, CD, scratch = work[0], work[1], work[2], work[3], work[4]
-    matmul_into(transitions[j], P[k], product)  # Phi P_k
-    if not solve_into(P_predicted[j], product, C_transposed, scratch):
-        C_transposed[:, :] = np.linalg.solve(P_predicted[j], product)
+    predicted, transition = work[5], work[6]
+    unpack_prediction(P_predicted[j], transitions[j], config, predicted, transition)
+    matmul_into(transition, P[k], product)  # Phi P_k
+    if not solve_into(predicted, product, C_transposed, scratch):
+        C_transposed[:, :] = np.linalg.solve(predicted, product)
     for i in range(n):
         for c in range(n):
-            difference[i, c] = P[k + 1, i, c] - P_predicted[j, i, c]
+            difference[i, c] = P[k + 1, i, c] - predicted[i, c]
     for i in range(n):  # x_k += C (x_{k+1} - x_predicted), C = C_transposed^T
         total = 0.0
         for m in range(n):
@@ -1415,55 +1504,68 @@ def rts_row(x, P, k, x_predicted, P_predicted, transitions, j, work):
 @njit(cache=True)
 def smooth_rows(stream, index, row_event, imu_t, accelerometer, gyroscope, imu_finite,
                 mocap_t, mocap_position, mocap_quaternion, visible, config, first_state,
-                save_every, saved_states, saved_events, segment, x, P, counters):
+                save_every, saved_states, saved_events, segment, x, P, counters,
+                kept_x_predicted, kept_P_predicted, kept_transitions):
     """The RTS backward pass (:func:`rts_row`) over rows m-1..0, in place: ``x`` (m, n) and
     ``P`` (m, n, n) hold the filtered states and become the smoothed ones (row k's filtered
     state is read once, by the step that writes its smoothed one; row k+1 is smoothed by then).
-    Without the forward pass's per-row predictions and transitions: blocks of ``save_every``
-    rows, last block first, run the forward loop again (:func:`filter_events`, the same
-    arithmetic: the same bits) from the state saved before the block (``first_state`` for the
-    first block) to get them. Row k is smoothed from row k+1 where both are in one ``segment``
-    (m,) (-1: no state, set to NaN); the last row of a segment keeps its filtered state.
+    Each row's prediction and transition product come from the forward pass
+    (``kept_x_predicted`` (m, n), ``kept_P_predicted``, ``kept_transitions``: packed,
+    :func:`pack_prediction`), or, where those are empty (a forward pass that did not keep them:
+    the step-by-step one), are recomputed: blocks of ``save_every`` rows, last block first, run
+    the forward loop again (:func:`filter_events`, the same arithmetic: the same bits) from the
+    state saved before the block (``first_state`` for the first block). Row k is smoothed from
+    row k+1 where both are in one ``segment`` (m,) (-1: no state, set to NaN) and row k+1's
+    transition was packed exactly; the last row of a segment keeps its filtered state.
     ``row_event`` (m,): each row's event; ``counters``: scratch."""
     m, n = x.shape
-    x_predicted = np.full((save_every, n), math.nan)
-    P_predicted = np.full((save_every, n, n), math.nan)
-    transitions = np.full((save_every, n, n), math.nan)
-    scratch_x = np.empty((save_every, n))
-    scratch_P = np.empty((save_every, n, n))
-    scratch_H = np.empty((save_every, 3, n))
-    scratch_offset = np.empty((save_every, 3))
-    scratch_outcome = np.empty(save_every, dtype=np.int64)
-    scratch_nis = np.empty(save_every)
-    scratch_dead_reckoned = np.empty(save_every, dtype=np.bool_)
-    no_states = np.zeros((0, 0))
-    no_events = np.zeros(0, dtype=np.int64)
-    work = np.empty((5, n, n))
-    no_innovations = np.zeros((0, 3))
-    no_innovation_covariances = np.zeros((0, 3, 3))
-    blocks = (m + save_every - 1) // save_every
-    for block in range(blocks - 1, -1, -1):
-        first_row = block * save_every
-        last_row = min(m, first_row + save_every) - 1
-        if block == 0:
-            state = first_state.copy()
-            begin = 0
-        else:
-            state = saved_states[block - 1].copy()
-            begin = saved_events[block - 1]
-        x_predicted[:] = math.nan
-        filter_events(stream, index, begin, row_event[last_row] + 1, imu_t, accelerometer,
-                      gyroscope, imu_finite, mocap_t, mocap_position, mocap_quaternion,
-                      visible, config, state, counters, first_row, scratch_x, scratch_P,
-                      scratch_H, scratch_offset, scratch_outcome, scratch_nis,
-                      no_innovations, no_innovation_covariances, scratch_dead_reckoned,
-                      np.zeros(0), np.zeros(0), x_predicted, P_predicted, transitions, 0,
-                      no_states, no_events)
-        for k in range(last_row - 1, first_row - 2, -1):
-            if k < 0 or segment[k] < 0 or segment[k + 1] != segment[k]:
-                continue
-            j = k + 1 - first_row
-            rts_row(x, P, k, x_predicted, P_predicted, transitions, j, work)
+    work = np.empty((7, n, n))
+    if kept_x_predicted.shape[0] == m:
+        for k in range(m - 2, -1, -1):
+            if (segment[k] >= 0 and segment[k + 1] == segment[k]
+                    and not math.isnan(kept_transitions[k + 1, 0])):
+                rts_row(x, P, k, kept_x_predicted, kept_P_predicted, kept_transitions, k + 1,
+                        config, work)
+    else:
+        x_predicted = np.full((save_every, n), math.nan)
+        P_predicted = np.full((save_every, triangle_size(n)), math.nan)
+        transitions = np.full((save_every, TRANSITION_SIZE), math.nan)
+        scratch_x = np.empty((save_every, n))
+        scratch_P = np.empty((save_every, n, n))
+        scratch_H = np.empty((save_every, 3, n))
+        scratch_offset = np.empty((save_every, 3))
+        scratch_outcome = np.empty(save_every, dtype=np.int64)
+        scratch_nis = np.empty(save_every)
+        scratch_dead_reckoned = np.empty(save_every, dtype=np.bool_)
+        no_states = np.zeros((0, 0))
+        no_events = np.zeros(0, dtype=np.int64)
+        no_innovations = np.zeros((0, 3))
+        no_innovation_covariances = np.zeros((0, 3, 3))
+        blocks = (m + save_every - 1) // save_every
+        for block in range(blocks - 1, -1, -1):
+            first_row = block * save_every
+            last_row = min(m, first_row + save_every) - 1
+            if block == 0:
+                state = first_state.copy()
+                begin = 0
+            else:
+                state = saved_states[block - 1].copy()
+                begin = saved_events[block - 1]
+            x_predicted[:] = math.nan
+            transitions[:] = math.nan
+            filter_events(stream, index, begin, row_event[last_row] + 1, imu_t, accelerometer,
+                          gyroscope, imu_finite, mocap_t, mocap_position, mocap_quaternion,
+                          visible, config, state, counters, first_row, scratch_x, scratch_P,
+                          scratch_H, scratch_offset, scratch_outcome, scratch_nis,
+                          no_innovations, no_innovation_covariances, scratch_dead_reckoned,
+                          np.zeros(0), np.zeros(0), x_predicted, P_predicted, transitions, 0,
+                          no_states, no_events)
+            for k in range(last_row - 1, first_row - 2, -1):
+                if k < 0 or segment[k] < 0 or segment[k + 1] != segment[k]:
+                    continue
+                j = k + 1 - first_row
+                if not math.isnan(transitions[j, 0]):
+                    rts_row(x, P, k, x_predicted, P_predicted, transitions, j, config, work)
     for k in range(m):
         if segment[k] < 0:
             x[k] = math.nan
@@ -1600,18 +1702,30 @@ def kernel_inputs(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64]
 
 class Replay:
     """What the compiled backward pass (:func:`smooth_in_place`) needs of a forward pass: the
-    kernel inputs (:func:`kernel_inputs`), ``config``, the first packed state and the states
-    saved after every :data:`SAVE_EVERY`-th row (``saved_states`` (m // SAVE_EVERY, packed
-    size)), from the whole-loop kernel or a step-by-step run on the same events."""
+    kernel inputs (:func:`kernel_inputs`), ``config``, and either each row's packed prediction
+    (``predictions``: x (m, n), P (m, n (n + 1) / 2), transition (m, TRANSITION_SIZE);
+    :func:`pack_prediction`), which the whole-loop kernel keeps, or the first packed state and
+    the states saved after every :data:`SAVE_EVERY`-th row (``saved_states`` (m // SAVE_EVERY,
+    packed size)), from which the backward pass recomputes them (a step-by-step forward pass on
+    the same events)."""
 
     def __init__(self, inputs: tuple, config: NDArray[np.float64],
-                 first_state: NDArray[np.float64], saved_states: NDArray[np.float64]) -> None:
+                 first_state: NDArray[np.float64], saved_states: NDArray[np.float64],
+                 predictions: tuple[NDArray[np.float64], NDArray[np.float64],
+                                    NDArray[np.float64]] | None = None) -> None:
         self.inputs = inputs
         self.config = config
         self.first_state = first_state
         self.saved_states = saved_states
+        self.predictions = predictions
         # the event after each saved state's row (run_kernel with save_every)
         self.saved_events = np.zeros(0, dtype=np.int64)
+
+    def without_predictions(self) -> Replay:
+        """The same forward pass as its saved states alone (the backward pass then recomputes
+        the predictions: the cross-check of the kept ones). The states must be saved every
+        :data:`SAVE_EVERY` rows."""
+        return Replay(self.inputs, self.config, self.first_state, self.saved_states)
 
 
 def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
@@ -1624,9 +1738,10 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     :func:`kfusion.kalman.events.merge_order`). Shapes: IMU (n,), (n, 3), (n, 3); mocap (m,),
     (m, 3), (m, 4), (m,); ``config`` from :func:`pack_config`; n states ``size``. With
     ``smoothing`` the run keeps what :func:`smooth_in_place` needs (``replay``: the inputs and
-    the states saved every :data:`SAVE_EVERY` rows); without it, ``save_every`` > 0 keeps the
-    states saved every ``save_every`` rows the same way (``replay`` too: :class:`Checkpoints`
-    continues from them)."""
+    each row's packed prediction, :func:`pack_prediction`); ``save_every`` > 0 keeps the
+    states saved every ``save_every`` rows (``replay`` too: :class:`Checkpoints` continues from
+    them; with ``smoothing`` and ``save_every`` :data:`SAVE_EVERY`, the backward pass can
+    recompute the predictions from them: :meth:`Replay.without_predictions`)."""
     rows = len(mocap_t)
     inputs = kernel_inputs(imu_t, accelerometer, gyroscope, mocap_t, mocap_position,
                            mocap_quaternion, visible, stream, index)
@@ -1642,23 +1757,26 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
     out_angle_variance = np.full(rows, np.nan)
     out_last_impact = np.full(rows, -math.inf)
     counters = np.zeros(len(COUNTER_INDEX), dtype=np.int64)
-    no_rows = np.zeros((0, size, size))
+    kept = rows if smoothing else 0
+    predictions = (np.full((kept, size), np.nan), np.full((kept, triangle_size(size)), np.nan),
+                   np.full((kept, TRANSITION_SIZE), np.nan))
     first_state = initial_state(size)
     state = first_state.copy()
-    save_every = SAVE_EVERY if smoothing else save_every
+    save_every = SAVE_EVERY if smoothing and save_every == 0 else save_every
     saved = rows // save_every if save_every > 0 else 0
     saved_states = np.zeros((saved, len(state)))
     saved_events = np.zeros(saved, dtype=np.int64)
     failed = filter_events(  # type: ignore[call-arg]
         inputs[0], inputs[1], 0, len(stream), *inputs[2:], config, state, counters, 0, out_x,
         out_P, out_H, out_offset, out_outcome, out_nis, out_y, out_S, out_dead_reckoned,
-        out_angle_variance, out_last_impact, np.zeros((0, size)), no_rows, no_rows, save_every,
-        saved_states, saved_events)
+        out_angle_variance, out_last_impact, *predictions, save_every, saved_states,
+        saved_events)
     run = KernelRun(out_x, out_P, out_H, out_offset, _OUTCOME_LOOKUP[out_outcome], out_nis,
                     out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(), strict=True)),
                     int(failed), out_y, out_S, out_angle_variance, out_last_impact)
-    if save_every > 0:
-        run.replay = Replay(inputs, config, first_state, saved_states)
+    if save_every > 0 or smoothing:
+        run.replay = Replay(inputs, config, first_state, saved_states,
+                            predictions if smoothing else None)
         run.replay.saved_events = saved_events
     return run
 
@@ -1702,7 +1820,6 @@ class Checkpoints:
         out_P = np.full((rows, n, n), np.nan)
         out_H = np.zeros((rows, 3, n))
         out_offset = np.zeros((rows, 3))
-        no_rows = np.zeros((0, n, n))
         inputs = self.inputs
         visible = self.hidden if hidden else inputs[9]
         failed = filter_events(  # type: ignore[call-arg]
@@ -1710,8 +1827,8 @@ class Checkpoints:
             state, self.counters, first_row, out_x, out_P, out_H, out_offset,
             np.full(rows, -1, dtype=np.int64), np.full(rows, np.nan), np.zeros((0, 3)),
             np.zeros((0, 3, 3)), np.zeros(rows, dtype=bool), np.zeros(0), np.zeros(0),
-            np.zeros((0, n)), no_rows, no_rows, 0,
-            np.zeros((0, len(state))), np.zeros(0, dtype=np.int64))
+            np.zeros((0, n)), np.zeros((0, triangle_size(n))), np.zeros((0, TRANSITION_SIZE)),
+            0, np.zeros((0, len(state))), np.zeros(0, dtype=np.int64))
         if failed >= 0:
             raise RuntimeError(f"replay of events {begin}..{end}: the kernel stopped at "
                                f"event {failed}, which the whole-loop run passed")
@@ -1722,7 +1839,8 @@ def smooth_in_place(replay: Replay, x: NDArray[np.float64], P: NDArray[np.float6
                     segments: list[tuple[int, int]]) -> None:
     """Smooth the filtered states ``x`` (m, n), ``P`` (m, n, n) of a forward pass in place
     (:func:`smooth_rows`), each of ``segments`` ((first, stop) row ranges) on its own, NaN
-    elsewhere. ``replay``: that forward pass's (:class:`Replay`)."""
+    elsewhere. ``replay``: that forward pass's (:class:`Replay`: its kept predictions, or its
+    saved states, from which they are recomputed)."""
     inputs = replay.inputs
     m = x.shape[0]
     segment = np.full(m, -1, dtype=np.int64)
@@ -1732,16 +1850,20 @@ def smooth_in_place(replay: Replay, x: NDArray[np.float64], P: NDArray[np.float6
     saved = len(replay.saved_states)
     # the event after the saved row (rows SAVE_EVERY - 1, 2 SAVE_EVERY - 1, ...)
     saved_events = row_event[SAVE_EVERY - 1::SAVE_EVERY][:saved] + 1
+    n = x.shape[1]
+    predictions = replay.predictions or (np.zeros((0, n)), np.zeros((0, triangle_size(n))),
+                                         np.zeros((0, TRANSITION_SIZE)))
     if m:
         smooth_rows(inputs[0], inputs[1], row_event, *inputs[2:], replay.config,  # type: ignore[call-arg]
                     replay.first_state, SAVE_EVERY, replay.saved_states, saved_events,
-                    segment, x, P, np.zeros(len(COUNTER_INDEX), dtype=np.int64))
+                    segment, x, P, np.zeros(len(COUNTER_INDEX), dtype=np.int64), *predictions)
 
 
-def saved_bytes_per_row(rows: int, size: int) -> float:
-    """Bytes per row the compiled smoother keeps beyond its (x, P) per row: the states saved
-    every :data:`SAVE_EVERY` rows."""
-    return (rows // SAVE_EVERY) * packed_size(size) * 8 / max(rows, 1)
+def kept_bytes(replay: Replay) -> int:
+    """Bytes the compiled smoother keeps for its backward pass beyond its (x, P) per row: the
+    packed predictions and the saved states."""
+    arrays = [replay.saved_states, *(replay.predictions or ())]
+    return sum(array.nbytes for array in arrays)
 
 
 _OUTCOME_LOOKUP: Final = np.array(OUTCOME_NAMES + ("",))

@@ -173,14 +173,16 @@ def _no_counters() -> NDArray[np.int64]:
 
 def monitored_rows(recording: Recording, params: KalmanParameters,
                    settings: MonitorParameters, reference: KalmanFusion,
-                   inputs: tuple[NDArray[Any], ...], recorder_class: Any
+                   inputs: tuple[NDArray[Any], ...], recorder_class: Any,
+                   smoothing: bool = False
                    ) -> tuple[Any, ConsistencyMonitor, compiled.Replay] | None:
     """The recorder (``recorder_class``: :class:`kfusion.kalman.batch._RowRecorder`), the
     monitor and the smoother's replay (:class:`kfusion.kalman.compiled.Replay`, the states
     after every :data:`~kfusion.kalman.compiled.SAVE_EVERY`-th row) of a two-pass run (module
     docstring) over ``inputs`` (:func:`kfusion.kalman.batch.kernel_inputs` of
-    ``recording``), with ``reference``'s configuration. None when the kernel stops at an event
-    it cannot handle (the caller runs the event-by-event path)."""
+    ``recording``), with ``reference``'s configuration; with ``smoothing`` the replay keeps
+    each row's packed prediction (:func:`kfusion.kalman.compiled.pack_prediction`). None when
+    the kernel stops at an event it cannot handle (the caller runs the event-by-event path)."""
     imu_t, force, rate, mocap_t, position, quaternion, visible, stream, index = inputs
     frames = np.flatnonzero(np.asarray(stream) == MOCAP_STREAM)
     order = np.asarray(index)[frames]
@@ -190,7 +192,7 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
     size = reference.size
     every = math.gcd(CHECKPOINT_ROWS, compiled.SAVE_EVERY)
     run = compiled.run_kernel(imu_t, force, rate, mocap_t, position, quaternion, visible,
-                              stream, index, config, size, save_every=every)
+                              stream, index, config, size, smoothing, save_every=every)
     if run.failed_event >= 0 or run.replay is None:
         return None
     checkpoints = compiled.Checkpoints(run.replay, size, every)
@@ -232,5 +234,5 @@ def monitored_rows(recording: Recording, params: KalmanParameters,
     kept = run.replay
     step = compiled.SAVE_EVERY // every  # the smoother's states among the kept ones
     replay = compiled.Replay(kept.inputs, config, kept.first_state,
-                             kept.saved_states[step - 1::step])
+                             kept.saved_states[step - 1::step], kept.predictions)
     return recorder, monitor, replay

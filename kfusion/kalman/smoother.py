@@ -501,8 +501,8 @@ def compiled_steps(recording: Recording, params: KalmanParameters,
                    ) -> tuple[_RowRecorder, Replay] | None:
     """The smoother's forward pass on the compiled engine with the consistency monitor: in two
     passes (:func:`kfusion.kalman.batch.monitored_kernel_rows`, the recorder's ``monitor`` is
-    then the two-pass run's), or, with ``stepwise`` or where the kernel cannot run it, step by
-    step
+    then the two-pass run's; the whole-loop kernel keeps each row's packed prediction), or,
+    with ``stepwise`` or where the kernel cannot run it, step by step
     (:class:`kfusion.kalman.compiled_fusion.CompiledFusion` fed by :func:`kfusion.kalman.batch.
     process_recording`, watched by the consistency monitor ``watcher``), keeping each row's
     filtered state and the packed state after every :data:`~kfusion.kalman.compiled.
@@ -514,7 +514,7 @@ def compiled_steps(recording: Recording, params: KalmanParameters,
     from kfusion.kalman import compiled
 
     if watcher is not None and not stepwise:
-        monitored = monitored_kernel_rows(recording, params, watcher.params)
+        monitored = monitored_kernel_rows(recording, params, watcher.params, smoothing=True)
         if monitored is not None:
             return monitored[0], monitored[2]
     inputs = kernel_inputs(recording, params.imu_latency_s)
@@ -550,8 +550,8 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     ``filtered`` rows there are more cautious than :func:`kfusion.kalman.run_filter`'s).
     ``engine``: ``compiled`` runs both passes as numba kernels
     (:func:`kfusion.kalman.compiled.filter_events`, :func:`~kfusion.kalman.compiled.
-    smooth_rows`: the backward pass recomputes the forward pass's per-row predictions and
-    transitions block by block instead of keeping them) when there is no monitor (which
+    smooth_rows`: the forward pass keeps each row's prediction and transition product packed,
+    in about 0.8 of an (x, P), and the backward pass reads them) when there is no monitor (which
     watches a filter event by event);
     ``filterpy`` runs :class:`KalmanFusion` and the numpy backward pass; marker-level fusion
     runs on filterpy (:func:`kfusion.kalman.batch.measurement_engine`). With a monitor the
@@ -625,8 +625,8 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
                            status=filtered_status, time_since_fix=since, method="kalman")
     if replay is not None:
         # in place: the recorder's filtered states become the smoothed ones (the filtered
-        # rows' point estimates are in `filtered`); the backward pass recomputes the per-row
-        # predictions and transitions block by block from the saved states
+        # rows' point estimates are in `filtered`); the backward pass reads the per-row
+        # predictions the forward kernel kept, or recomputes them from its saved states
         from kfusion.kalman import compiled
 
         compiled.smooth_in_place(replay, recorder.x, recorder.P, segments)
