@@ -689,3 +689,38 @@ def test_two_pass_smoother_forward_pass_equals_event_by_event(case: str) -> None
     np.testing.assert_array_equal(fast.x, reference.x)
     np.testing.assert_array_equal(fast.P, reference.P)
     assert repr(fast.monitor) == repr(reference.monitor)
+
+
+def test_a_frame_stamped_out_of_row_order_is_smoothed_without_writing_past_the_blocks(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """One mocap frame stamped 1000 s ahead (the reader refuses it; the API takes it) puts
+    that row last among the merged events. The backward pass's blocks assume row k is the k-th
+    frame event, and recomputing them wrote past the blocks' arrays: the default monitored
+    smoother (whose two passes need frames in row order, so it runs step by step) aborted the
+    process with heap corruption (an adversarial review). Such a pass now recomputes in one
+    block; it gives the kept predictions' bits, and the two-pass-less monitored smoother the
+    rows of its step-by-step run."""
+    from kfusion.kalman.batch import compiled_rows, make_fusion, resolve_parameters
+    from kfusion.kalman.smoother import initialised_segments
+    from kfusion.simulate import faults
+
+    base = simulate("arm_lift", seed=8, duration=8.0,
+                    occlusions=OcclusionSpec(gap_range=(0.15, 0.6), spacing=1.0)).recording
+    recording = faults.mocap_future_stamp(faults.Streams.of(base), fraction=0.4).recording
+    monkeypatch.setattr(compiled, "SAVE_EVERY", 64)  # many blocks on 801 rows
+    kept = run_smoother(recording, monitor=None, engine="compiled")
+    forward = compiled_rows(recording, make_fusion(recording,
+                                                   resolve_parameters(recording, None, {})),
+                            smoothing=True)
+    assert forward is not None and forward[1].replay is not None
+    recorder, run = forward
+    segments = initialised_segments(recorder.outcome.astype(str), recorder.initialised)
+    compiled.smooth_in_place(run.replay.without_predictions(), recorder.x, recorder.P, segments)
+    np.testing.assert_array_equal(recorder.x, kept.x)
+    np.testing.assert_array_equal(recorder.P, kept.P)
+    monitored = run_smoother(recording, engine="compiled")
+    assert np.isfinite(monitored.result.position).all(axis=1).sum() > 600
+    reference = run_smoother(recording, engine="filterpy", monitor=None)
+    finite = np.isfinite(reference.result.position[:, 0])
+    np.testing.assert_allclose(kept.result.position[finite], reference.result.position[finite],
+                               rtol=0, atol=1e-3)

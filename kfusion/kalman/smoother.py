@@ -567,7 +567,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     m = len(recording.mocap)
     rows: tuple[_RowRecorder, Replay] | None = None
     if engine == "compiled" and watcher is None:
-        # the whole forward loop in one kernel, saving a state every SAVE_EVERY rows
+        # the whole forward loop in one kernel, keeping each row's packed prediction
         kernel = compiled_rows(recording, make_fusion(recording, params), smoothing=True)
         rows = None if kernel is None else (kernel[0], kernel[1].replay)
     elif engine == "compiled":
