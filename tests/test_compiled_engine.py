@@ -293,7 +293,7 @@ def random_rotation(rng: np.random.Generator) -> np.ndarray:
 def test_structured_predict_equals_the_general_product(size: int) -> None:
     """The hot-path predict (F from its blocks, no matrices formed) gives the bits of
     ``covariance_predict`` with :func:`interval_matrices` and :func:`process_noise`, and the
-    transition product the smoother keeps."""
+    transition product the smoother keeps (packed) those of ``F Phi``."""
     rng = np.random.default_rng(3)
     config = np.zeros(compiled.CONFIG_SIZE)
     config[compiled.C_POSITION], config[compiled.C_VELOCITY], config[compiled.C_BIAS] = 0, 3, 6
@@ -317,13 +317,23 @@ def test_structured_predict_equals_the_general_product(size: int) -> None:
         control = np.empty(size)
         compiled.control_term(R0, R1, dt, f0, f1, config, control)
         pp, pv, vv, bb = compiled.noise_terms(dt, extra, bias_variance, config)
-        interval = rng.normal(size=(size, size))
-        expected_interval = compiled.matmul(F, interval)
+        interval = rng.normal(size=compiled.TRANSITION_SIZE)  # a product Phi, packed
+        expected_interval = compiled.matmul(F, whole_transition(interval, size))
         compiled.structured_predict(x, P, dt, blocks, control, pp, pv, vv, bb, config,
                                     np.empty((2, size, size)), interval)
         np.testing.assert_array_equal(x, x_general)
         np.testing.assert_array_equal(P, P_general)
-        np.testing.assert_array_equal(interval, expected_interval)
+        np.testing.assert_array_equal(whole_transition(interval, size), expected_interval)
+
+
+def whole_transition(packed: np.ndarray, size: int) -> np.ndarray:
+    """The (n, n) transition product of its packed form (TRANSITION_SIZE,): T, F_pb, F_vb
+    row-major, on the layout's first 9 states (``unpack_prediction``'s transition)."""
+    config = layout_config(size)
+    P, transition = np.empty((size, size)), np.empty((size, size))
+    compiled.unpack_prediction(np.zeros(compiled.triangle_size(size)), packed, config, P,
+                               transition)
+    return transition
 
 
 @pytest.mark.parametrize("size", [9, 12])
@@ -364,14 +374,36 @@ def layout_config(size: int) -> np.ndarray:
     return config
 
 
-def imu_transition(size: int, dt: float, rng: np.random.Generator) -> np.ndarray:
-    """``I + [[0, dt I, F_pb], [0, 0, F_vb], 0]`` with random bias blocks of the sizes of
-    dt^2 and dt (:func:`kfusion.kalman.compiled.interval_matrices`' form)."""
+def imu_blocks(dt: float, rng: np.random.Generator) -> np.ndarray:
+    """Random bias blocks (2, 3, 3) of an IMU transition: F_pb and F_vb of the sizes of dt^2
+    and dt (:func:`kfusion.kalman.compiled.imu_blocks`' form)."""
+    return np.stack([rng.normal(size=(3, 3)) * dt * dt, rng.normal(size=(3, 3)) * dt])
+
+
+def imu_transition(size: int, dt: float, blocks: np.ndarray) -> np.ndarray:
+    """``I + [[0, dt I, F_pb], [0, 0, F_vb], 0]`` (n, n) on the layout's first 9 states
+    (:func:`kfusion.kalman.compiled.interval_matrices`' form), ``blocks`` from
+    :func:`imu_blocks`."""
     F = np.eye(size)
     F[0:3, 3:6] = dt * np.eye(3)
-    F[0:3, 6:9] = rng.normal(size=(3, 3)) * dt * dt
-    F[3:6, 6:9] = rng.normal(size=(3, 3)) * dt
+    F[0:3, 6:9] = blocks[0]
+    F[3:6, 6:9] = blocks[1]
     return F
+
+
+def transition_product(size: int, steps: list[tuple[float, np.ndarray]]
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """The product of the IMU transitions of ``steps`` ((dt s, blocks) in time order) as the
+    whole (n, n) matrix, each step applied by the kernel's ``transition_times``, and as the
+    kernel keeps it (``accumulate_transition``'s packed form, from the identity's)."""
+    config = layout_config(size)
+    whole = np.eye(size)
+    packed = np.zeros(compiled.TRANSITION_SIZE)
+    for dt, blocks in steps:
+        before = whole.copy()
+        compiled.transition_times(before, whole, dt, blocks, config)
+        compiled.accumulate_transition(packed, dt, blocks)
+    return whole, packed
 
 
 @pytest.mark.parametrize("size", [9, 12])
@@ -394,11 +426,12 @@ def test_rts_row_equals_the_numpy_step(size: int) -> None:
         P = A @ A.transpose(0, 2, 1) + np.eye(size) * 1e-14
         P = 0.5 * (P + P.transpose(0, 2, 1))
         x = rng.normal(size=(3, size))
-        transition = imu_transition(size, 0.01, rng) @ imu_transition(size, 0.005, rng)
+        transition, packed = transition_product(size, [(0.005, imu_blocks(0.005, rng)),
+                                                       (0.01, imu_blocks(0.01, rng))])
         expected_x, expected_P = rts_step(x[0], P[0], x[2], P[2], transition, x[1], P[1])
         rows_x, rows_P = x[:2].copy(), P[:2].copy()
-        assert compiled.pack_prediction(x[2], P[2], transition, config, packed_x[0],
-                                        packed_P[0], packed_transition[0])
+        assert compiled.pack_prediction(x[2], P[2], packed, packed_x[0], packed_P[0],
+                                        packed_transition[0])
         compiled.rts_row(rows_x, rows_P, 0, packed_x, packed_P, packed_transition, 0, config,
                          work)
         np.testing.assert_allclose(rows_x[0], expected_x, rtol=1e-9, atol=1e-12)
@@ -464,19 +497,27 @@ def test_kept_and_recomputed_predictions_give_the_same_bits(case: str,
 
 
 def test_a_prediction_packs_and_unpacks_to_the_same_bits() -> None:
-    """pack_prediction keeps P's upper triangle and Phi's free entries (T, F_pb, F_vb) and
-    unpack_prediction rebuilds them bit for bit, here for a product of two hand-built IMU
-    transitions on the 12-state layout (lever-arm rows and columns are the identity's); an
-    asymmetric P, or a Phi outside that form, is refused (False, NaN time): the backward pass
-    does not smooth across such a row."""
+    """The forward kernel keeps the product of a row's transitions in its 19 free entries
+    (T, F_pb, F_vb: accumulate_transition), pack_prediction keeps those and P's upper
+    triangle, and unpack_prediction rebuilds them. Here for products of hand-built IMU
+    transitions and a no-IMU one (zero blocks) on the 12-state layout (lever-arm rows and
+    columns are the identity's): the same bits as the whole (n, n) products the kernel's
+    transition_times and matmul give, with T the sum of the steps' dt. An asymmetric P, or a
+    product that is not finite, is refused (False, NaN time): the backward pass does not
+    smooth across such a row."""
     from kfusion.kalman.layout import LEVER_LAYOUT
 
     n = LEVER_LAYOUT.size
-    p, v, b = (LEVER_LAYOUT.start(name) for name in ("position", "velocity", "bias"))
-    lever = LEVER_LAYOUT.start("lever_arm")
+    p, v = LEVER_LAYOUT.start("position"), LEVER_LAYOUT.start("velocity")
     config = layout_config(n)
     rng = np.random.default_rng(3)
-    Phi = imu_transition(n, 0.005, rng) @ imu_transition(n, 0.004, rng)
+    steps = [(0.004, imu_blocks(0.004, rng)), (0.005, imu_blocks(0.005, rng)),
+             (0.02, np.zeros((2, 3, 3))), (0.003, imu_blocks(0.003, rng))]
+    Phi, packed = transition_product(n, steps)
+    by_matmul = np.eye(n)
+    for dt, blocks in steps:
+        by_matmul = compiled.matmul(imu_transition(n, dt, blocks), by_matmul)
+    np.testing.assert_array_equal(Phi, by_matmul)
     A = rng.normal(size=(n, n))
     P = A @ A.T
     P = 0.5 * (P + P.T)
@@ -484,8 +525,8 @@ def test_a_prediction_packs_and_unpacks_to_the_same_bits() -> None:
     out_x = np.empty(n)
     out_P = np.empty(compiled.triangle_size(n))
     out_transition = np.empty(compiled.TRANSITION_SIZE)
-    assert compiled.pack_prediction(x, P, Phi, config, out_x, out_P, out_transition)
-    assert out_transition[0] == Phi[p, v] == 0.005 + 0.004
+    assert compiled.pack_prediction(x, P, packed, out_x, out_P, out_transition)
+    assert out_transition[0] == Phi[p, v] == ((0.004 + 0.005) + 0.02) + 0.003
     full_P, full_Phi = np.empty((n, n)), np.empty((n, n))
     compiled.unpack_prediction(out_P, out_transition, config, full_P, full_Phi)
     np.testing.assert_array_equal(out_x, x)
@@ -493,12 +534,12 @@ def test_a_prediction_packs_and_unpacks_to_the_same_bits() -> None:
     np.testing.assert_array_equal(full_Phi, Phi)
     lopsided = P.copy()
     lopsided[0, 1] += 1e-12
-    assert not compiled.pack_prediction(x, lopsided, Phi, config, out_x, out_P, out_transition)
+    assert not compiled.pack_prediction(x, lopsided, packed, out_x, out_P, out_transition)
     assert math.isnan(out_transition[0])
-    for i, j in ((p, lever), (lever, p), (v, p), (p, v + 1), (b, b)):
-        other = Phi.copy()
-        other[i, j] += 1e-3
-        assert not compiled.pack_prediction(x, P, other, config, out_x, out_P, out_transition)
+    for entry, value in ((0, math.nan), (5, math.inf), (18, -math.inf)):
+        broken = packed.copy()
+        broken[entry] = value
+        assert not compiled.pack_prediction(x, P, broken, out_x, out_P, out_transition)
         assert math.isnan(out_transition[0])
 
 

@@ -13,7 +13,8 @@ The hot path allocates nothing per event: the predict forms ``F P F^T`` from F's
 form (:func:`position_update`); the general forms (:func:`covariance_predict`,
 :func:`covariance_update`) are kept as their cross-check. The smoother's forward pass keeps
 each row's prediction packed (:func:`pack_prediction`: P's upper triangle and the transition
-product's 19 free entries), and its backward pass (:func:`smooth_rows`) reads them; a forward
+product's 19 free entries, the only ones it accumulates: :func:`accumulate_transition`), and
+its backward pass (:func:`smooth_rows`) reads them; a forward
 pass run step by step keeps states every :data:`SAVE_EVERY` rows instead, from which the
 backward pass recomputes the predictions with the same bits.
 
@@ -400,7 +401,8 @@ def structured_predict(x, P, dt, blocks, control, pp, pv, vv, bb, config, work, 
         x <- F x + c,  P <- F (F P)^T + Q  (= F P F^T + Q for a symmetric P), symmetrised
     with ``c`` the control term ``B u`` (:func:`control_term`: position and velocity rows)
     and Q's nonzero entries per axis ``Q_pp, Q_pv, Q_vv, Q_bb`` (:func:`process_noise`).
-    ``work`` (2, n, n) scratch; ``interval`` (n, n) becomes ``F interval`` unless empty.
+    ``work`` (2, n, n) scratch; ``interval`` (:data:`TRANSITION_SIZE`,) becomes ``F interval``
+    (:func:`accumulate_transition`) unless empty.
     Allocation-free: the compiled engine's hot path (equal to :func:`covariance_predict` with
     those F, B u, Q up to the sign of exact zeros)."""
     p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
@@ -426,11 +428,7 @@ def structured_predict(x, P, dt, blocks, control, pp, pv, vv, bb, config, work, 
         P[v + i, v + i] += vv
         P[b + i, b + i] += bb
     symmetrise(P)
-    if interval.shape[0] > 0:
-        for i in range(n):
-            for j in range(n):
-                transposed[i, j] = interval[i, j]
-        transition_times(transposed, interval, dt, blocks, config)
+    accumulate_transition(interval, dt, blocks)
 
 
 @njit(cache=True)
@@ -718,11 +716,26 @@ def reset(x, P, orientation, scalars, counters):
 
 
 @njit(cache=True)
-def accumulate_transition(interval, F):
-    """``Phi <- F Phi``: the product of the transitions since the last mocap row, which the
-    smoother needs (``cov(x_k, x_{k+1|k}) = P_k Phi^T``). An empty ``interval``: not kept."""
-    if interval.shape[0] > 0:
-        interval[:, :] = matmul(F, interval)
+def accumulate_transition(transition, dt, blocks):
+    """``Phi <- F Phi`` for ``F = I + [[0, dt I, F_pb], [0, 0, F_vb], 0]`` (``blocks`` (2, 3,
+    3): F_pb, F_vb from :func:`imu_blocks`; zeros: the no-IMU transition), in place on Phi's
+    free entries (:func:`pack_prediction`'s form, ``transition`` (TRANSITION_SIZE,): the
+    product of the transitions since the last mocap row, which the smoother needs,
+    ``cov(x_k, x_{k+1|k}) = P_k Phi^T``). Every such F keeps the form, and the product's free
+    entries are::
+
+        T <- T + dt,  Phi_pb <- (Phi_pb + dt Phi_vb) + F_pb,  Phi_vb <- Phi_vb + F_vb
+    the bits of the whole (n, n) product (:func:`transition_times` on it, or :func:`matmul`),
+    whose other terms add exact zeros (up to the sign of an exact zero). An empty
+    ``transition``: not kept."""
+    if transition.shape[0] == 0:
+        return
+    transition[0] = transition[0] + dt
+    for i in range(3):
+        for j in range(3):
+            pb, vb = 1 + 3 * i + j, 10 + 3 * i + j
+            transition[pb] = (transition[pb] + dt * transition[vb]) + blocks[0, i, j]
+            transition[vb] = transition[vb] + blocks[1, i, j]
 
 
 @njit(cache=True)
@@ -792,7 +805,7 @@ def advance_without_imu(t, x, P, orientation, scalars, config, counters, interva
             Q[v + i, v + i] = q2 * dt
             Q[b + i, b + i] = walk2 * dt
         covariance_predict(x, P, F, np.zeros((n, 9)), np.zeros(9), Q)
-        accumulate_transition(interval, F)
+        accumulate_transition(interval, dt, np.zeros((2, 3, 3)))
         if scalars[OUTAGE_SINCE_FIX] == 0.0:
             counters[14] += 1
         scalars[OUTAGE_SINCE_FIX] = 1.0
@@ -1218,8 +1231,8 @@ def predict_packed_state(stamp, f, omega, state, config, counters, n, work):
     read only) on a packed state (:func:`state_views`); ``work``: scratch
     (:func:`work_size`)."""
     x, P, orientation, scalars, _, _ = state_views(state, n)
-    predict_step(stamp, f, omega, x, P, orientation, scalars, config, counters,
-                 np.zeros((0, 0)), work)
+    predict_step(stamp, f, omega, x, P, orientation, scalars, config, counters, np.zeros(0),
+                 work)
 
 
 @njit(cache=True)
@@ -1230,7 +1243,7 @@ def packed_update(t, visible, z, q_global_body, has_quaternion, state, config, c
     x, P, orientation, scalars, prior_x, prior_P = state_views(state, n)
     work = np.empty(work_size(n))
     kind, nis, fused = update_step(t, visible, z, q_global_body, has_quaternion, x, P,
-                                   orientation, scalars, config, counters, np.zeros((0, 0)),
+                                   orientation, scalars, config, counters, np.zeros(0),
                                    prior_x, prior_P, work)
     y = np.full(3, math.nan)
     S = np.full((3, 3), math.nan)
@@ -1279,7 +1292,7 @@ from there (:func:`smooth_rows`)."""
     size = out_x.shape[1]
     x, P, orientation, scalars, prior_x, prior_P = state_views(state, size)
     smoothing = out_transition.shape[0] > 0
-    interval = np.eye(size) if smoothing else np.zeros((0, 0))
+    interval = np.zeros(TRANSITION_SIZE if smoothing else 0)  # Phi, packed
     work = np.empty(work_size(size))
     for event in range(begin, end):
         row = index[event]
@@ -1328,10 +1341,9 @@ from there (:func:`smooth_rows`)."""
                 out_angle_variance[out] = orientation[7]
             if smoothing:
                 pack_prediction(prior_x if fused else x, prior_P if fused else P, interval,
-                                config, out_x_predicted[out], out_P_predicted[out],
-                                out_transition[out])
+                                out_x_predicted[out], out_P_predicted[out], out_transition[out])
         if smoothing:
-            interval[:, :] = np.eye(size)
+            interval[:] = 0.0  # the identity
         if save_every > 0 and (row + 1) % save_every == 0:
             saved_states[(row + 1) // save_every - 1] = state
             saved_events[(row + 1) // save_every - 1] = event + 1
@@ -1350,23 +1362,23 @@ def triangle_size(n):
 
 
 @njit(cache=True)
-def pack_prediction(x, P, interval, config, out_x, out_P, out_transition):
+def pack_prediction(x, P, transition, out_x, out_P, out_transition):
     """Keep one row's prediction for the smoother in about 0.8 of an (x, P) (the smoother's
     memory target is 2 (x, P) per row): ``out_x`` (n,) = x; ``out_P`` (n (n + 1) / 2,) = the
-    upper triangle of the symmetric P, row by row; ``out_transition`` (TRANSITION_SIZE,) = the
-    product of the transitions since the previous row, which is the identity except its
-    position-velocity time T (T I), its position-bias block F_pb and its velocity-bias block
-    F_vb (each transition is ``I + [[0, dt I, F_pb], [0, 0, F_vb], 0]``:
-    :func:`transition_times`, :func:`advance_without_imu`; products of such keep the form)::
+    upper triangle of the symmetric P, row by row; ``out_transition`` (TRANSITION_SIZE,) =
+    ``transition``, the product of the transitions since the previous row in its packed form.
+    That product is the identity except its position-velocity time T (T I), its position-bias
+    block F_pb and its velocity-bias block F_vb (each transition is ``I + [[0, dt I, F_pb],
+    [0, 0, F_vb], 0]``: :func:`transition_times`, :func:`advance_without_imu`; products of
+    such keep the form, :func:`accumulate_transition` keeps those 19 entries)::
 
         Phi = I + [[0, T I, F_pb], [0, 0, F_vb], 0]
     Returns False, with ``out_transition[0]`` NaN (the smoother does not smooth across the
-    row: :func:`rts_row`'s caller), where P is not exactly symmetric or Phi is not exactly of
-    that form (a NaN or an infinity outside the free entries, from a non-finite product): then
-    :func:`unpack_prediction` would not give the bits back. (A review found neither on the
-    simulated fault cases nor on the 7 BROAD trials, about 470,000 rows.)"""
+    row: :func:`rts_row`'s caller), where P is not exactly symmetric (then
+    :func:`unpack_prediction` would not give its bits back) or Phi is not finite (a NaN or an
+    infinity from a non-finite product). (A review found neither on the simulated fault cases
+    nor on the 7 BROAD trials, about 470,000 rows.)"""
     n = x.shape[0]
-    p, v, b = int(config[C_POSITION]), int(config[C_VELOCITY]), int(config[C_BIAS])
     out_x[:] = x
     exact = True
     k = 0
@@ -1376,24 +1388,10 @@ def pack_prediction(x, P, interval, config, out_x, out_P, out_transition):
             k += 1
             if not (P[j, i] == P[i, j] or (math.isnan(P[i, j]) and math.isnan(P[j, i]))):
                 exact = False
-    time = interval[p, v]
-    out_transition[0] = time
-    for i in range(3):
-        for j in range(3):
-            out_transition[1 + 3 * i + j] = interval[p + i, b + j]
-            out_transition[10 + 3 * i + j] = interval[v + i, b + j]
-    for i in range(n):
-        for j in range(n):
-            expected = 1.0 if i == j else 0.0
-            row_p, row_v = i - p, i - v
-            if 0 <= row_p < 3 and j == v + row_p:
-                expected = time
-            elif 0 <= row_p < 3 and 0 <= j - b < 3:
-                continue
-            elif 0 <= row_v < 3 and 0 <= j - b < 3:
-                continue
-            if interval[i, j] != expected:
-                exact = False
+    for k in range(TRANSITION_SIZE):
+        out_transition[k] = transition[k]
+        if not math.isfinite(transition[k]):
+            exact = False
     if not exact:
         out_transition[0] = math.nan
     return exact
