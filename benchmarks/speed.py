@@ -111,7 +111,8 @@ def sweep(runs: int, seconds: float, engine: str, monitor: bool) -> tuple[float,
     return end - warm, float(sum(filtering))
 
 
-def smoother_bytes_per_row(seconds: float) -> tuple[int, int, int, int]:
+def smoother_bytes_per_row(seconds: float, estimate_lever_arm: bool = False
+                           ) -> tuple[int, int, int, int]:
     """(state size n, bytes of x and P per row, bytes the compiled smoother keeps per row, the
     same with the output maps). Kept: one x and P per row (the backward pass overwrites the
     filtered state with the smoothed one, in place), the forward filter's point estimates
@@ -119,11 +120,18 @@ def smoother_bytes_per_row(seconds: float) -> tuple[int, int, int, int]:
     forward pass saves every SAVE_EVERY rows and each row's packed prediction (x, the upper
     triangle of P and the transition product's 19 free entries), which the backward pass
     reads (measured on the forward kernel's run). The output maps (H, c per row) turn
-    states into points; they are counted in the last number."""
+    states into points; they are counted in the last number, as the memory they hold (H is
+    one (3, n) matrix for all rows without the lever-arm states: a view with row stride 0).
+    ``estimate_lever_arm``: the recording's lever arm left out, so the filter estimates it
+    (12 states, H per row); else it is given (9 states)."""
+    from dataclasses import replace
+
     from kfusion.kalman import compiled
     from kfusion.kalman.batch import compiled_rows, make_fusion, resolve_parameters
 
     data = recording(seconds)
+    if estimate_lever_arm:
+        data = replace(data, info=replace(data.info, lever_arm=None))
     run = run_smoother(data, monitor=None, engine="compiled")
     assert run.output_matrix is not None
     forward = compiled_rows(data, make_fusion(data, resolve_parameters(data, None, {})),
@@ -133,7 +141,7 @@ def smoother_bytes_per_row(seconds: float) -> tuple[int, int, int, int]:
     state = 8 * (n + n * n)
     kept = run.x.nbytes + run.P.nbytes + 2 * run.filtered.position.nbytes
     kept += compiled.kept_bytes(forward[1].replay)
-    maps = run.output_matrix.nbytes + 8 * 3 * rows
+    maps = run.output_matrix.strides[0] * rows + forward[0].output_offset.nbytes
     return n, state, int(round(kept / rows)), int(round((kept + maps) / rows))
 
 
@@ -255,12 +263,13 @@ def main() -> None:
         rows.append((f"Tracker.push_imu in order, engine {engine}", f"median {median * 1e6:.0f} µs",
                      f"{median * bare_now:.2f} bare steps (loop at {bare_now:,.0f} steps/s just "
                      "before the run)"))
-    n, state, kept, with_maps = smoother_bytes_per_row(seconds)
-    rows.append((f"compiled smoother memory per row ({n} states): x, P, filtered points, "
-                 "saved states, packed predictions",
-                 f"{kept} bytes ({with_maps} with the output maps H, c)",
-                 f"{kept / state:.3f}x the state's {state} bytes (x, P); "
-                 f"{with_maps / state:.2f}x with the maps"))
+    for estimate_lever_arm in (False, True):
+        n, state, kept, with_maps = smoother_bytes_per_row(seconds, estimate_lever_arm)
+        rows.append((f"compiled smoother memory per row ({n} states): x, P, filtered points, "
+                     "saved states, packed predictions",
+                     f"{kept} bytes ({with_maps} with the output maps H, c)",
+                     f"{kept / state:.3f}x the state's {state} bytes (x, P); "
+                     f"{with_maps / state:.3f}x with the maps"))
     rows.append(("import kfusion.tracker (no numba)", f"{import_time() * 1e3:.0f} ms", ""))
     if not args.quick:
         numba_import, cold, warm = cold_start()

@@ -27,6 +27,7 @@ from kfusion.kalman.model import (
     orientation_error_variance,
     output_arm,
     output_covariance,
+    output_matrices,
     output_point,
     timestamp_jitter,
 )
@@ -246,6 +247,8 @@ class FilterRun:
             fix).
         P: (m, n, n) its covariance.
         output_matrix: (m, 3, n) H at each row: the rigid-body point is ``H x + output_offset``.
+            Without the lever-arm states it is ``[I 0 0]`` on every row, a read-only view of
+            one (3, n) matrix (:func:`kfusion.kalman.model.output_matrices`).
         output_offset: (m, 3) m.
         outcome: (m,) what the update did (accepted, occluded, gated, reacquired, initialised).
         nis: (m,) NIS of the row's fix (NaN where none was compared).
@@ -498,7 +501,8 @@ class _RowRecorder:
         self.tested = np.ones(rows, dtype=bool)
         self.x = np.full((rows, size), np.nan)
         self.P = np.full((rows, size, size), np.nan)
-        self.output_matrix = np.zeros((rows, 3, size))
+        # (m, 3, n): a read-only view of one H without the lever-arm states
+        self.output_matrix = output_matrices(rows, size, fusion.estimates_lever_arm)
         self.output_offset = np.zeros((rows, 3))
         self.outcome = np.empty(rows, dtype=object)
         self.nis = np.full(rows, np.nan)
@@ -555,7 +559,8 @@ class _RowRecorder:
             self.x[row] = fusion._kf.x
             self.P[row] = fusion._kf.P
             H, offset = fusion.output_map()
-            self.output_matrix[row] = H
+            if fusion.estimates_lever_arm:  # else H is output_matrix's one [I 0 0]
+                self.output_matrix[row] = H
             self.output_offset[row] = offset
             self.layout_variance[row] = getattr(fusion, "layout_variance", 0.0)
             self.angle_variance[row] = fusion.angle_variance

@@ -1277,6 +1277,8 @@ def filter_events(stream, index, begin, end, imu_t, accelerometer, gyroscope, im
     of the outputs per mocap row (row ``r`` at ``r - row_offset``). Returns -1, or the event
     number the kernel cannot handle (a non-increasing stamp that is not an identical
     duplicate): the caller then runs the filterpy engine, whose error message names it.
+    ``out_H`` may have no rows, where H is the same on every row (no lever-arm states:
+    :func:`kfusion.kalman.model.output_matrices`); the offsets are kept either way.
     ``out_angle_variance`` and ``out_last_impact`` (each (m,) or empty: not kept) take the
     orientation's angle variance and the time of the last impact (``LAST_IMPACT``) after each
     row's frame.
@@ -1294,6 +1296,7 @@ from there (:func:`smooth_rows`)."""
     smoothing = out_transition.shape[0] > 0
     interval = np.zeros(TRANSITION_SIZE if smoothing else 0)  # Phi, packed
     work = np.empty(work_size(size))
+    same_H = np.empty((3, size))  # where out_H has no rows (the same H on every row)
     for event in range(begin, end):
         row = index[event]
         if stream[event] == 0:
@@ -1335,7 +1338,8 @@ from there (:func:`smooth_rows`)."""
         if scalars[INITIALISED_FLAG] != 0.0:
             out_x[out] = x
             out_P[out] = P
-            output_map_into(orientation[0:4], config, out_H[out], out_offset[out],
+            output_map_into(orientation[0:4], config,
+                            out_H[out] if out_H.shape[0] > 0 else same_H, out_offset[out],
                             work_views(work, size)[6])
             if out_angle_variance.shape[0] > 0:
                 out_angle_variance[out] = orientation[7]
@@ -1747,7 +1751,8 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
                            mocap_quaternion, visible, stream, index)
     out_x = np.full((rows, size), np.nan)
     out_P = np.full((rows, size, size), np.nan)
-    out_H = np.zeros((rows, 3, size))
+    varies = output_matrix_varies(config)
+    out_H = np.zeros((rows if varies else 0, 3, size))  # else one H (model.output_matrices)
     out_offset = np.zeros((rows, 3))
     out_outcome = np.full(rows, -1, dtype=np.int64)
     out_nis = np.full(rows, np.nan)
@@ -1771,7 +1776,8 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
         out_P, out_H, out_offset, out_outcome, out_nis, out_y, out_S, out_dead_reckoned,
         out_angle_variance, out_last_impact, *predictions, save_every, saved_states,
         saved_events)
-    run = KernelRun(out_x, out_P, out_H, out_offset, _OUTCOME_LOOKUP[out_outcome], out_nis,
+    run = KernelRun(out_x, out_P, out_H if varies else model.output_matrices(rows, size, False),
+                    out_offset, _OUTCOME_LOOKUP[out_outcome], out_nis,
                     out_dead_reckoned, dict(zip(COUNTER_INDEX, counters.tolist(), strict=True)),
                     int(failed), out_y, out_S, out_angle_variance, out_last_impact)
     if save_every > 0 or smoothing:
@@ -1779,6 +1785,12 @@ def run_kernel(imu_t: NDArray[np.float64], accelerometer: NDArray[np.float64],
                             predictions if smoothing else None)
         run.replay.saved_events = saved_events
     return run
+
+
+def output_matrix_varies(config: NDArray[np.float64]) -> bool:
+    """True when the output map's H changes from row to row: with the lever-arm states
+    (:func:`output_map_into`; without them H is ``[I 0 0]`` on every row)."""
+    return bool(config[C_LEVER_STATE] >= 0)
 
 
 class Checkpoints:

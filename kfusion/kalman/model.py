@@ -184,6 +184,19 @@ def output_point(H: NDArray[np.float64], x: NDArray[np.float64],
     return H @ x + offset
 
 
+def output_matrices(rows: int, size: int, varies: bool) -> NDArray[np.float64]:
+    """H (rows, 3, n) of a run's rows (:func:`output_point`). With the lever-arm states
+    (``varies``: H holds ``-R_global_body``, which turns with the body) zeros for the run to
+    fill row by row. Without them H is ``[I 0 0]`` on every row, whatever the orientation: then
+    a read-only view of that one (3, n) matrix, which takes no memory per row (only the offset
+    c changes from row to row, with a known lever arm)."""
+    if varies:
+        return np.zeros((rows, MEASUREMENT_SIZE, size))
+    selector = np.zeros((MEASUREMENT_SIZE, size))
+    selector[:, POSITION] = np.eye(MEASUREMENT_SIZE)
+    return np.broadcast_to(selector, (rows, MEASUREMENT_SIZE, size))
+
+
 def output_covariance(H: NDArray[np.float64], P: NDArray[np.float64]) -> NDArray[np.float64]:
     """The state's part of the rigid-body point's covariance (3, 3) m^2: ``H P H^T`` (see
     :func:`output_point`). The orientation's part is :func:`orientation_error_covariance`."""
