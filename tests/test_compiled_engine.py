@@ -765,3 +765,42 @@ def test_a_frame_stamped_out_of_row_order_is_smoothed_without_writing_past_the_b
     finite = np.isfinite(reference.result.position[:, 0])
     np.testing.assert_allclose(kept.result.position[finite], reference.result.position[finite],
                                rtol=0, atol=1e-3)
+
+
+def test_one_shared_output_matrix_gives_the_bits_of_one_per_row() -> None:
+    """Without the lever-arm states every row's H is [I 0 0], kept once (a read-only view,
+    row stride 0: model.output_matrices). The covariances H P H^T (batch.position_covariances:
+    P's position block where P is finite, else row by row), the compiled points
+    (compiled.point_rows with one (1, 3, n) H) and row selections give the bits of the same H
+    copied to every row; with a NaN row the covariances fall back to the products."""
+    from kfusion.kalman.batch import position_covariances
+    from kfusion.kalman.model import output_matrices, output_matrix_rows
+
+    rng = np.random.default_rng(11)
+    rows, n = 400, 9
+    A = rng.normal(size=(rows, n, n)) * np.geomspace(1e-7, 1e2, n)
+    P = A @ A.transpose(0, 2, 1)
+    x = rng.normal(size=(rows, n))
+    offset = rng.normal(size=(rows, 3)) * 0.05
+    shared = output_matrices(rows, n, False)
+    assert shared.strides[0] == 0 and not shared.flags.writeable
+    per_row = np.array(shared)
+    assert per_row.strides[0] != 0
+    np.testing.assert_array_equal(per_row[:, :, 0:3], np.broadcast_to(np.eye(3), (rows, 3, 3)))
+    np.testing.assert_array_equal(per_row[:, :, 3:], 0.0)
+    for covariances in (P, np.where(np.arange(rows)[:, None, None] == 7, np.nan, P)):
+        fast = position_covariances(covariances, shared)
+        np.testing.assert_array_equal(fast, position_covariances(covariances, per_row))
+        np.testing.assert_array_equal(np.signbit(fast),
+                                      np.signbit(position_covariances(covariances, per_row)))
+    position, variance = compiled.point_rows(np.array(shared[:1]), x, offset, P)
+    expected_position, expected_variance = compiled.point_rows(per_row, x, offset, P)
+    np.testing.assert_array_equal(position, expected_position)
+    np.testing.assert_array_equal(variance, expected_variance)
+    chosen = np.array([3, 3, 17, 399])
+    selected = output_matrix_rows(shared, chosen)
+    assert selected.strides[0] == 0
+    np.testing.assert_array_equal(selected, per_row[chosen])
+    varying = output_matrices(rows, 12, True)
+    assert varying.flags.writeable and varying.shape == (rows, 3, 12) and not varying.any()
+    np.testing.assert_array_equal(output_matrix_rows(varying, chosen), varying[chosen])

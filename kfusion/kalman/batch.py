@@ -24,10 +24,12 @@ from kfusion.kalman.filter import USED_OUTCOMES, KalmanFusion, UpdateOutcome
 from kfusion.kalman.markers import marker_fix_noise, shared_run_lengths
 from kfusion.kalman.model import (
     BASE_SIZE,
+    POSITION,
     orientation_error_variance,
     output_arm,
     output_covariance,
     output_matrices,
+    output_matrix_rows,
     output_point,
     timestamp_jitter,
 )
@@ -345,7 +347,14 @@ def position_covariances(P: NDArray[np.float64], output_matrix: NDArray[np.float
                          ) -> NDArray[np.float64]:
     """Rigid-body point covariance ``H P H^T`` per row (m, 3, 3) from (m, n, n) and (m, 3, n)
     (:func:`kfusion.kalman.model.output_covariance`, row by row: the filter's own order of
-    operations)."""
+    operations). Where H is the one ``[I 0 0]`` of every row (no lever-arm states:
+    :func:`kfusion.kalman.model.output_matrices`) and P is finite, P's position block: the same
+    bits, since the products are the selected entries plus exact zeros (up to the sign of an
+    exact zero)."""
+    if len(P) and output_matrix.strides[0] == 0 \
+            and np.array_equal(output_matrix[0], output_matrices(1, P.shape[1], False)[0]) \
+            and np.isfinite(P).all():
+        return P[:, POSITION, POSITION].copy()
     return np.array([output_covariance(H, covariance) for H, covariance
                      in zip(output_matrix, P, strict=True)]).reshape(-1, 3, 3)
 
@@ -544,7 +553,8 @@ class _RowRecorder:
         if self.monitor is None or not self.widening:
             return
         rows, scales, factors = (np.array(column) for column in zip(*self.widening, strict=True))
-        covariances = position_covariances(self.P[rows], self.output_matrix[rows])
+        covariances = position_covariances(self.P[rows],
+                                           output_matrix_rows(self.output_matrix, rows))
         widened = fix_covariances_widened(covariances, self.monitor.fix_noise_variance, scales,
                                           factors)
         self.at_fix_variance[rows] = np.diagonal(widened, axis1=1, axis2=2)
@@ -700,8 +710,11 @@ def compiled_points(recorder: _RowRecorder, x: NDArray[np.float64] | None = None
     point_rows`) for the recorder's rows, or for states ``x``, ``P`` at its output maps."""
     from kfusion.kalman import compiled
 
+    maps = recorder.output_matrix
+    if maps.strides[0] == 0:  # one H for every row (model.output_matrices), as (1, 3, n)
+        maps = np.array(maps[:1])  # a copy: a read-only view is another numba type
     position, variance = compiled.point_rows(
-        recorder.output_matrix, recorder.x if x is None else x, recorder.output_offset,
+        maps, recorder.x if x is None else x, recorder.output_offset,
         recorder.P if P is None else P)
     return position, variance
 

@@ -1578,23 +1578,26 @@ def smooth_rows(stream, index, row_event, imu_t, accelerometer, gyroscope, imu_f
 @njit(cache=True)
 def point_rows(output_matrix, x, offset, P):
     """Rigid-body point ``H x + c`` (m, 3) and its variance per axis ``diag(H P H^T)`` (m, 3)
-    from per-row output maps (m, 3, n), states (m, n), offsets (m, 3) and covariances
-    (m, n, n) (:func:`kfusion.kalman.batch.point_estimates`); NaN rows stay NaN."""
+    from per-row output maps (m, 3, n), or one for every row (1, 3, n), states (m, n),
+    offsets (m, 3) and covariances (m, n, n) (:func:`kfusion.kalman.batch.point_estimates`);
+    NaN rows stay NaN."""
     rows, n = x.shape
+    shared = output_matrix.shape[0] != rows  # one H (kfusion.kalman.model.output_matrices)
     position = np.empty((rows, 3))
     variance = np.empty((rows, 3))
     for row in range(rows):
+        H = output_matrix[0] if shared else output_matrix[row]
         for i in range(3):
             total = 0.0
             for j in range(n):
-                total += output_matrix[row, i, j] * x[row, j]
+                total += H[i, j] * x[row, j]
             position[row, i] = total + offset[row, i]
             total = 0.0
             for j in range(n):
                 inner = 0.0
                 for k in range(n):
-                    inner += P[row, j, k] * output_matrix[row, i, k]
-                total += output_matrix[row, i, j] * inner
+                    inner += P[row, j, k] * H[i, k]
+                total += H[i, j] * inner
             variance[row, i] = total
     return position, variance
 

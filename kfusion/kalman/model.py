@@ -197,6 +197,15 @@ def output_matrices(rows: int, size: int, varies: bool) -> NDArray[np.float64]:
     return np.broadcast_to(selector, (rows, MEASUREMENT_SIZE, size))
 
 
+def output_matrix_rows(output_matrix: NDArray[np.float64], rows: NDArray[np.intp]
+                       ) -> NDArray[np.float64]:
+    """``output_matrix[rows]`` (k, 3, n) for row indices ``rows`` (k,), still one shared H
+    where ``output_matrix`` is (:func:`output_matrices`; indexing would copy it per row)."""
+    if output_matrix.strides[0] == 0 and len(output_matrix):
+        return np.broadcast_to(output_matrix[0], (len(rows), *output_matrix.shape[1:]))
+    return output_matrix[rows]
+
+
 def output_covariance(H: NDArray[np.float64], P: NDArray[np.float64]) -> NDArray[np.float64]:
     """The state's part of the rigid-body point's covariance (3, 3) m^2: ``H P H^T`` (see
     :func:`output_point`). The orientation's part is :func:`orientation_error_covariance`."""
