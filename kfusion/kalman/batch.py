@@ -250,7 +250,8 @@ class FilterRun:
         P: (m, n, n) its covariance.
         output_matrix: (m, 3, n) H at each row: the rigid-body point is ``H x + output_offset``.
             Without the lever-arm states it is ``[I 0 0]`` on every row, a read-only view of
-            one (3, n) matrix (:func:`kfusion.kalman.model.output_matrices`).
+            one (3, n) matrix (:func:`kfusion.kalman.model.output_matrices`); a pickled run
+            comes back with a full copy.
         output_offset: (m, 3) m.
         outcome: (m,) what the update did (accepted, occluded, gated, reacquired, initialised).
         nis: (m,) NIS of the row's fix (NaN where none was compared).

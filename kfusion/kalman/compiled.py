@@ -1380,8 +1380,10 @@ def pack_prediction(x, P, transition, out_x, out_P, out_transition):
     Returns False, with ``out_transition[0]`` NaN (the smoother does not smooth across the
     row: :func:`rts_row`'s caller), where P is not exactly symmetric (then
     :func:`unpack_prediction` would not give its bits back) or Phi is not finite (a NaN or an
-    infinity from a non-finite product). (A review found neither on the simulated fault cases
-    nor on the 7 BROAD trials, about 470,000 rows.)"""
+    infinity from a non-finite product). Reviews found neither on the simulated fault cases
+    nor on the 7 BROAD trials (about 714,000 rows); only a reset by stamps near 1e308 s, whose
+    product overflows to an infinity on the row that starts the new segment (the backward pass
+    does not smooth across it either way)."""
     n = x.shape[0]
     out_x[:] = x
     exact = True

@@ -161,7 +161,10 @@ class SmootherRun:
         params: the parameters used.
         monitor: the forward filter's consistency report (None without a monitor).
         holdout: the hold-out gaps' scales (None without a monitor or without gaps).
-        output_matrix: (m, 3, n) H at each row (rigid-body point ``H x + c``).
+        output_matrix: (m, 3, n) H at each row (rigid-body point ``H x + c``). Without the
+            lever-arm states it is ``[I 0 0]`` on every row, a read-only view of one (3, n)
+            matrix (:func:`kfusion.kalman.model.output_matrices`); a pickled run comes back
+            with a full copy.
     """
 
     result: TrackResult
