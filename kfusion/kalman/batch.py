@@ -344,6 +344,14 @@ def point_estimates(x: NDArray[np.float64], P: NDArray[np.float64],
     return position, variance
 
 
+def row_position_covariances(P: NDArray[np.float64], output_matrix: NDArray[np.float64],
+                             rows: NDArray[np.intp]) -> NDArray[np.float64]:
+    """:func:`position_covariances` (k, 3, 3) of rows ``rows`` (k,) of per-row covariances
+    (m, n, n) and output maps (m, 3, n), a shared H kept shared
+    (:func:`kfusion.kalman.model.output_matrix_rows`)."""
+    return position_covariances(P[rows], output_matrix_rows(output_matrix, rows))
+
+
 def position_covariances(P: NDArray[np.float64], output_matrix: NDArray[np.float64]
                          ) -> NDArray[np.float64]:
     """Rigid-body point covariance ``H P H^T`` per row (m, 3, 3) from (m, n, n) and (m, 3, n)
@@ -554,8 +562,7 @@ class _RowRecorder:
         if self.monitor is None or not self.widening:
             return
         rows, scales, factors = (np.array(column) for column in zip(*self.widening, strict=True))
-        covariances = position_covariances(self.P[rows],
-                                           output_matrix_rows(self.output_matrix, rows))
+        covariances = row_position_covariances(self.P, self.output_matrix, rows)
         widened = fix_covariances_widened(covariances, self.monitor.fix_noise_variance, scales,
                                           factors)
         self.at_fix_variance[rows] = np.diagonal(widened, axis1=1, axis2=2)

@@ -157,10 +157,7 @@ def _selected_points(x: NDArray[np.float64], P: NDArray[np.float64], H: NDArray[
     finite: ``H x + c`` is then ``x[:3] + c`` and ``H P H^T`` is ``P[:3, :3]`` to the bit
     (:func:`kfusion.kalman.model.output_point`'s products are the selected entries and exact
     zeros). None otherwise (each row is computed as the Tracker does)."""
-    size = x.shape[1]
-    selector = np.zeros((3, size))
-    selector[:, model.POSITION] = np.eye(3)
-    if not (np.array_equal(H, np.broadcast_to(selector, H.shape))
+    if not (np.array_equal(H, model.output_matrices(len(H), x.shape[1], False))
             and np.isfinite(x).all() and np.isfinite(P).all()):
         return None
     return (x[:, model.POSITION] + offset, P[:, model.POSITION, model.POSITION],

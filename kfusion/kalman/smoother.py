@@ -66,16 +66,15 @@ from kfusion.kalman.batch import (
     monitored_output,
     orientation_rows,
     point_estimates,
-    position_covariances,
     process_recording,
     resolve_parameters,
+    row_position_covariances,
     row_statuses,
     status_from_fixes,
 )
 from kfusion.kalman.engines import DEFAULT_ENGINE
 from kfusion.kalman.filter import ACCEPTED, GATED, INITIALISED, USED_OUTCOMES, UpdateOutcome
 from kfusion.kalman.markers import shared_run_lengths
-from kfusion.kalman.model import output_matrix_rows
 from kfusion.kalman.parameters import KalmanParameters
 from kfusion.monitor import (
     ConsistencyMonitor,
@@ -352,8 +351,7 @@ def holdout_scales(recording: Recording, params: KalmanParameters, monitor: Moni
     bridged = run.result.status == BRIDGED
     for start, stop in occlusion_runs(~hidden.gap_mask):
         rows = start + np.flatnonzero(bridged[start:stop])
-        maps = output_matrix_rows(run.output_matrix, rows)
-        covariance = position_covariances(run.P[rows], maps) + noise * np.eye(3)
+        covariance = row_position_covariances(run.P, run.output_matrix, rows) + noise * np.eye(3)
         scales.add_gap(horizon[rows], required_scales(
             run.result.position[rows] - hidden.truth_position[rows], covariance,
             monitor.confidence))
@@ -404,8 +402,7 @@ def _hidden_edge_fixes(recording: Recording, params: KalmanParameters,
     rows = np.flatnonzero(hidden_rows & (run.result.status != LOST)
                           & np.isfinite(mocap.position).all(axis=1))
     noise = fix_noise_variance(params, run.nis, run.outcome)
-    covariance = position_covariances(run.P[rows], output_matrix_rows(run.output_matrix, rows)) \
-        + noise * np.eye(3)
+    covariance = row_position_covariances(run.P, run.output_matrix, rows) + noise * np.eye(3)
     residual = mocap.position[rows] - run.result.position[rows]
     nis = np.array([normalised_error_squared(residual[k], covariance[k])
                     for k in range(len(rows))])
