@@ -147,6 +147,23 @@ def _frozen(array: NDArray, where: str = "array") -> NDArray:
     return array
 
 
+def _frozen_times(array: NDArray, where: str) -> NDArray:
+    """:func:`_frozen` stamps (s), ValueError naming the first row that is NaN or infinite.
+
+    A stamp that is not finite has no place in the fusion order: the engines met it at
+    different points (a fused fix took an infinite time without a word, the monitor's shadow
+    refused it, an occluded one raised), so a recording refuses it where it is built, as the
+    readers refuse it in a file (:func:`check_times`)."""
+    times = _frozen(array, where)
+    bad = np.flatnonzero(~np.isfinite(times)) if times.ndim == 1 else np.zeros(0, dtype=int)
+    if len(bad):
+        row = int(bad[0])
+        raise ValueError(f"{where}: row {row}: expected a finite time in s, got "
+                         f"{float(times[row])!r}" + (f" ({len(bad)} such rows)"
+                                                     if len(bad) > 1 else ""))
+    return times
+
+
 @dataclass(frozen=True)
 class ImuSamples:
     """IMU samples, read-only arrays.
@@ -162,7 +179,7 @@ class ImuSamples:
     gyroscope: NDArray[np.float64]
 
     def __post_init__(self) -> None:
-        t = _frozen(self.t, "ImuSamples.t")
+        t = _frozen_times(self.t, "ImuSamples.t")
         accelerometer = _frozen(self.accelerometer, "ImuSamples.accelerometer")
         gyroscope = _frozen(self.gyroscope, "ImuSamples.gyroscope")
         n = t.shape[0] if t.ndim == 1 else -1
@@ -194,7 +211,7 @@ class MocapFrames:
     quaternion: NDArray[np.float64]
 
     def __post_init__(self) -> None:
-        t = _frozen(self.t, "MocapFrames.t")
+        t = _frozen_times(self.t, "MocapFrames.t")
         position = _frozen(self.position, "MocapFrames.position")
         quaternion = _frozen(self.quaternion, "MocapFrames.quaternion")
         n = t.shape[0] if t.ndim == 1 else -1
@@ -263,7 +280,7 @@ class MarkerFrames:
     position: NDArray[np.float64]
 
     def __post_init__(self) -> None:
-        t = _frozen(self.t, "MarkerFrames.t")
+        t = _frozen_times(self.t, "MarkerFrames.t")
         position = _frozen(self.position, "MarkerFrames.position")
         names = tuple(self.names)
         for name in names:

@@ -26,7 +26,7 @@ from kfusion.guards import (
     short_repr,
 )
 from kfusion.kalman import KalmanFusion, KalmanParameters
-from kfusion.recording import ImuSamples, MocapFrames, read_info
+from kfusion.recording import ImuSamples, MarkerFrames, MocapFrames, read_info
 from kfusion.simulate import OcclusionSpec, simulate, write_simulation
 from kfusion.tracker import Tracker
 
@@ -335,6 +335,30 @@ def test_masked_arrays_are_refused_everywhere():
         ImuSamples(np.ma.array([0.0, 0.01]), np.zeros((2, 3)), np.zeros((2, 3)))
     with pytest.raises(ValueError, match="MocapFrames.position: " + pattern):
         MocapFrames(np.zeros(1), np.ma.zeros((1, 3)), np.zeros((1, 4)))
+
+
+@pytest.mark.parametrize("stamp", [math.nan, math.inf, -math.inf])
+def test_a_stream_refuses_a_stamp_that_is_not_finite_where_it_is_built(stamp):
+    # Before, each engine met such a stamp at a different point: a fused fix took an infinite
+    # time without a word (whole-loop kernel, filterpy), the monitored smoother fell back to
+    # filterpy with the compiled monitor ("restore: expected a CompiledSnapshot"), and the
+    # step-by-step engines refused it. The reader refuses it in a file; a recording built in
+    # code now does too, naming the stream and the row.
+    times = np.array([0.0, 0.01, stamp, 0.03])
+    with pytest.raises(ValueError, match=rf"^ImuSamples\.t: row 2: expected a finite time in s, "
+                       rf"got {stamp!r}$"):
+        ImuSamples(times, np.zeros((4, 3)), np.zeros((4, 3)))
+    with pytest.raises(ValueError, match=rf"^MocapFrames\.t: row 2: expected a finite time in "
+                       rf"s, got {stamp!r}$"):
+        MocapFrames(times, np.zeros((4, 3)), np.tile([1.0, 0, 0, 0], (4, 1)))
+    with pytest.raises(ValueError, match=r"^MarkerFrames\.t: row 1: .* \(2 such rows\)$"):
+        MarkerFrames(np.array([0.0, stamp, stamp]), ("A",), np.zeros((3, 1, 3)))
+    recording = simulate("arm_lift", seed=0, duration=5.0).recording
+    stamps = recording.mocap.t.copy()
+    stamps[-1] = stamp
+    with pytest.raises(ValueError, match=r"MocapFrames\.t: row \d+: expected a finite time"):
+        recording.with_mocap(MocapFrames(stamps, recording.mocap.position,
+                                         recording.mocap.quaternion))
 
 
 @pytest.mark.parametrize("name", ["accelerometer_noise_density",

@@ -667,8 +667,6 @@ def compiled_rows(recording: Recording, fusion: KalmanFusion, *, smoothing: bool
     from kfusion.kalman import compiled  # numba loads on first use of the engine
 
     inputs = kernel_inputs(recording, fusion.params.imu_latency_s)
-    if inputs is None:
-        return None  # no place in the fusion order: the filterpy engine names it
     imu_t, force, rate, mocap_t, position, quaternion, visible, stream, index = inputs
     run = compiled.run_kernel(imu_t, force, rate, mocap_t, position, quaternion, visible, stream,
                               index, fusion.kernel_config(), fusion.size, smoothing)
@@ -689,21 +687,18 @@ def monitored_kernel_rows(recording: Recording, params: KalmanParameters,
     from kfusion.kalman.monitored import monitored_rows  # numba loads here
 
     inputs = kernel_inputs(recording, params.imu_latency_s)
-    if inputs is None:
-        return None
     return monitored_rows(recording, params, monitor, make_fusion(recording, params), inputs,
                           _RowRecorder, smoothing)
 
 
-def kernel_inputs(recording: Recording, latency_s: float) -> tuple[NDArray[Any], ...] | None:
+def kernel_inputs(recording: Recording, latency_s: float) -> tuple[NDArray[Any], ...]:
     """The recording on the mocap clock as the compiled kernels' arguments: IMU t, specific
     force, rate, mocap t, position, quaternion, visible, and the merged events (``stream``,
     ``index``: :func:`kfusion.kalman.events.merge_order`, the order :func:`process_recording`
-    feeds) up to the last mocap row. None when a time is NaN (no place in the fusion order)."""
+    feeds) up to the last mocap row (every stamp is finite: the recording's streams refuse
+    others where they are built)."""
     recording = on_mocap_clock(recording)
     imu, mocap = recording.imu, recording.mocap
-    if np.isnan(imu.t).any() or np.isnan(mocap.t).any():
-        return None
     _, stream, index = merge_order(imu.t, mocap.t, latency_s)
     frames = np.flatnonzero(stream == MOCAP_STREAM)
     end = int(frames[-1]) + 1 if len(frames) else 0  # IMU samples after the last row: unused

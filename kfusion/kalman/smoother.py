@@ -499,7 +499,7 @@ def smoothed_edge_shape(t: NDArray[np.float64], fixed: NDArray[np.bool_],
 
 def compiled_steps(recording: Recording, params: KalmanParameters,
                    watcher: ConsistencyMonitor | None, *, stepwise: bool = False
-                   ) -> tuple[_RowRecorder, Replay] | None:
+                   ) -> tuple[_RowRecorder, Replay]:
     """The smoother's forward pass on the compiled engine with the consistency monitor: in two
     passes (:func:`kfusion.kalman.batch.monitored_kernel_rows`, the recorder's ``monitor`` is
     then the two-pass run's; the whole-loop kernel keeps each row's packed prediction), or,
@@ -510,8 +510,7 @@ def compiled_steps(recording: Recording, params: KalmanParameters,
     SAVE_EVERY`-th row, from which the compiled backward pass recomputes the per-row
     predictions (:func:`kfusion.kalman.compiled.smooth_in_place`): the monitor only reads the
     filter (snapshots for its shadow filter, estimates as priors), so the kernel's replay of the
-    same events gives the same predictions. None when a time is NaN (the caller runs the
-    filterpy engine, whose error names it)."""
+    same events gives the same predictions."""
     from kfusion.kalman import compiled
 
     if watcher is not None and not stepwise:
@@ -519,8 +518,6 @@ def compiled_steps(recording: Recording, params: KalmanParameters,
         if monitored is not None:
             return monitored[0], monitored[2]
     inputs = kernel_inputs(recording, params.imu_latency_s)
-    if inputs is None:
-        return None
     fusion: Any = make_fusion(recording, params, "compiled")
     recorder = _RowRecorder(fusion, len(recording.mocap), watcher)
     every = compiled.SAVE_EVERY
@@ -574,8 +571,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     elif engine == "compiled":
         # the monitor watches the filter event by event: the compiled filter step by step
         rows = compiled_steps(recording, params, watcher, stepwise=stepwise)
-        if rows is not None:
-            watcher = rows[0].monitor  # the two-pass run's monitor, or watcher itself
+        watcher = rows[0].monitor  # the two-pass run's monitor, or watcher itself
     replay = None
     if rows is not None:
         recorder, replay = rows
