@@ -26,6 +26,20 @@ from kfusion.guards import atomic_write
 from kfusion.recording import RecordingError
 
 
+def bounded_rows(status: NDArray[np.str_], variance: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.str_], NDArray[np.float64]]:
+    """(status (m,), std (m, 3) m) of rows with per-axis variances ``variance`` (m, 3) m^2: a
+    row whose variance is not a finite number >= 0 on every axis has no bound and is ``lost``
+    (a filter's covariance rounded below zero, or overflowed, is no promise); the std of a lost
+    row is NaN (never the square root of a negative number)."""
+    variance = np.asarray(variance, dtype=float)
+    usable = np.isfinite(variance).all(axis=1) & (variance >= 0.0).all(axis=1)
+    usable &= np.asarray(status) != LOST
+    std = np.full(variance.shape, np.nan)
+    std[usable] = np.sqrt(variance[usable])
+    return np.where(usable, status, LOST).astype(str), std
+
+
 @dataclass(frozen=True)
 class TrackResult:
     """An estimator's output at the mocap timestamps.

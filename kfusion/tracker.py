@@ -2176,10 +2176,14 @@ def _same_values(new: tuple[ArrayLike, ...], old: tuple[ArrayLike, ...]) -> bool
 
 
 def _finite_reading(reading: _Reading, has_covariance: bool) -> bool:
-    """Position finite, and the covariance too if the method has one."""
+    """Position finite, and the covariance too if the method has one, with every variance
+    >= 0 (the rule of :func:`kfusion.track_file.bounded_rows`: a covariance rounded below
+    zero is no bound)."""
     if not np.isfinite(reading.position).all():
         return False
-    return not has_covariance or bool(np.isfinite(reading.covariance).all())
+    covariance = reading.covariance
+    return not has_covariance or bool(np.isfinite(covariance).all()
+                                      and (np.diag(covariance) >= 0.0).all())
 
 
 

@@ -2,7 +2,8 @@
 (:class:`kfusion.kalman.KalmanFusion`): the same rows within 1e-9 m, the same outcomes, statuses
 and counters, on simulated recordings that exercise every branch (gaps, a bad fix, re-acquisition,
 lever-arm states, resets, a 500 s silence, saturation, rejected samples, latency and a clock
-offset) and on the bundled BROAD excerpt. Plus one predict and one update step checked against hand-derived values.
+offset) and on the bundled BROAD excerpt. Plus one predict and one update step checked against
+hand-derived values.
 
 The kernels compile once per process (numba ``cache=True`` keeps the machine code on disk)."""
 

@@ -27,6 +27,7 @@ from kfusion.kalman.events import IMU_STREAM, merge_events
 from kfusion.recording import MocapFrames, Recording
 from kfusion.simulate import simulate
 from kfusion.streamhealth import FIX_TIMEOUT_S, tracking_status
+from kfusion.track_file import bounded_rows
 from kfusion.tracker import Tracker
 
 MAX_BRIDGE_S = 0.2
@@ -93,6 +94,19 @@ def test_the_rule_by_hand():
     assert tracking_status(0.16, False, beyond_dead_reckoning=True, **rule) == LOST
     assert tracking_status(0.31, False, **rule) == LOST
     assert tracking_status(np.inf, False, **rule) == LOST
+
+
+def test_a_row_without_a_usable_variance_is_lost():
+    """A bound is a promise: a variance rounded below zero, overflowed or NaN is none, so the
+    row is lost (before, the smoother reported a frame stamped 1000 s ahead ``tracked`` with
+    a NaN std: its smoothed variance was -7e-8 m^2)."""
+    status = np.array([TRACKED, BRIDGED, TRACKED, BRIDGED, TRACKED, LOST])
+    variance = np.array([[4e-6, 9e-8, 0.0], [1e-4, 1e-4, 1e-4], [9e-8, -7e-8, 9e-8],
+                         [np.inf, 1e-4, 1e-4], [np.nan, 9e-8, 9e-8], [1e-6, 1e-6, 1e-6]])
+    kept, std = bounded_rows(status, variance)
+    assert kept.tolist() == [TRACKED, BRIDGED, LOST, LOST, LOST, LOST]
+    np.testing.assert_array_equal(std[:2], [[2e-3, 3e-4, 0.0], [1e-2, 1e-2, 1e-2]])
+    assert np.isnan(std[2:]).all()
 
 
 def test_every_estimator_gives_the_same_status(recording):

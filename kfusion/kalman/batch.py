@@ -45,7 +45,7 @@ from kfusion.monitor import (
 )
 from kfusion.recording import Recording, on_mocap_clock, without_held_frames
 from kfusion.streamhealth import FIX_TIMEOUT_S, tracking_status
-from kfusion.track_file import TrackResult
+from kfusion.track_file import TrackResult, bounded_rows
 
 
 def resolve_parameters(recording: Recording, params: KalmanParameters | None,
@@ -781,7 +781,7 @@ def run_filter(recording: Recording, params: KalmanParameters | None = None, *,
         variance = variance + orientation
     # the marker layout's common error, last: the Tracker adds it to its reading's covariance
     variance = variance + recorder.layout_variance[:, None]
-    std = np.sqrt(variance)
+    status, std = bounded_rows(status, variance)
     result = TrackResult(t=np.array(recording.mocap.t), position=position, std=std,
                          status=status, time_since_fix=since, method="kalman")
     return FilterRun(result=result, x=recorder.x, P=recorder.P,

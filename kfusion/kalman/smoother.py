@@ -102,7 +102,7 @@ from kfusion.recording import (
     occlusion_runs,
     without_held_frames,
 )
-from kfusion.track_file import TrackResult
+from kfusion.track_file import TrackResult, bounded_rows
 
 if TYPE_CHECKING:
     from kfusion.kalman.compiled import Replay  # numba: loaded with the compiled engine only
@@ -636,7 +636,8 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
             watcher.params.horizon_edges_s, orientation)
     else:
         variance = variance + orientation
-    filtered = TrackResult(t=t, position=position, std=np.sqrt(variance),
+    filtered_status, filtered_std = bounded_rows(filtered_status, variance)
+    filtered = TrackResult(t=t, position=position, std=filtered_std,
                            status=filtered_status, time_since_fix=since, method="kalman")
     if replay is not None:
         # in place: the recorder's filtered states become the smoothed ones (the filtered
@@ -725,7 +726,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     # the marker layout's common error (kfusion.kalman.marker_layout): the same in every frame,
     # so no smoothing averages it down; the forward filter's at each row
     variance = variance + recorder.layout_variance[:, None]
-    std = np.sqrt(variance)
+    status, std = bounded_rows(status, variance)
     return SmootherRun(
         result=TrackResult(t=t, position=position, std=std, status=status,
                            time_since_fix=since, method="smoother"),
