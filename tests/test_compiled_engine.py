@@ -889,6 +889,9 @@ def test_one_shared_output_matrix_gives_the_bits_of_one_per_row() -> None:
     expected_position, expected_variance = compiled.point_rows(per_row, x, offset, P)
     np.testing.assert_array_equal(position, expected_position)
     np.testing.assert_array_equal(variance, expected_variance)
+    for count in (0, 2):  # neither one map per row nor one for all: refused, never read past
+        with pytest.raises(ValueError, match="point_rows: expected one output map per row"):
+            compiled.point_rows(np.array(per_row[:count]), x, offset, P)
     chosen = np.array([3, 3, 17, 399])
     selected = output_matrix_rows(shared, chosen)
     assert selected.strides[0] == 0

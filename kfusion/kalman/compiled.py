@@ -1605,8 +1605,11 @@ def point_rows(output_matrix, x, offset, P):
     """Rigid-body point ``H x + c`` (m, 3) and its variance per axis ``diag(H P H^T)`` (m, 3)
     from per-row output maps (m, 3, n), or one for every row (1, 3, n), states (m, n),
     offsets (m, 3) and covariances (m, n, n) (:func:`kfusion.kalman.batch.point_estimates`);
-    NaN rows stay NaN."""
+    NaN rows stay NaN. ValueError for any other number of maps (numba checks no bounds: a
+    (0, 3, n) array read as one map would read memory past it)."""
     rows, n = x.shape
+    if output_matrix.shape[0] != rows and output_matrix.shape[0] != 1:
+        raise ValueError("point_rows: expected one output map per row, or one for every row")
     shared = output_matrix.shape[0] != rows  # one H (kfusion.kalman.model.output_matrices)
     position = np.empty((rows, 3))
     variance = np.empty((rows, 3))
