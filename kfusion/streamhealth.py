@@ -119,13 +119,14 @@ def tracking_status(time_since_fix: float, last_frame_fused: bool, *, fix_timeou
 
     ``time_since_fix`` (s) runs from the last fused fix; it is inf before the first fix and
     whenever the estimator has no state to go from (a reset), so those times are lost. The
-    smoother, which also sees the fixes after a row, passes the distance to the nearest fused
-    fix either side. At a row of ``kfusion track`` the last frame is the row's own, so a row is
-    tracked exactly when its fix was used. ``fix_timeout_s`` is :data:`FIX_TIMEOUT_S` unless the
-    Tracker's options change it; ``fix_timeout_s <= max_bridge_s``, so the order of the first
-    two lines only matters for the IMU: a fused fix is tracked whether or not the IMU is
-    alive. Beyond this rule, the consistency monitor (:mod:`kfusion.monitor`) may turn a
-    bridged estimate lost when it finds the IMU model broken.
+    smoother, which also sees the fixes after a row, measures from the last fix as well
+    (:func:`kfusion.kalman.smoother.smoother_status`). At a row of ``kfusion track`` the last
+    frame is the row's own, so a row is tracked exactly when its fix was used.
+    ``fix_timeout_s`` is :data:`FIX_TIMEOUT_S` unless the Tracker's options change it;
+    ``fix_timeout_s <= max_bridge_s``, so the order of the first two lines only matters for the
+    IMU: a fused fix is tracked whether or not the IMU is alive. Beyond this rule, the
+    consistency monitor (:mod:`kfusion.monitor`) may turn a bridged estimate lost when it finds
+    the IMU model broken.
     """
     if last_frame_fused and time_since_fix <= fix_timeout_s:
         return TRACKED

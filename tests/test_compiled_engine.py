@@ -111,7 +111,8 @@ def long_silence() -> Recording:
 
 
 CASES = {
-    "gaps_lever_arm_states": (simulated, {}),
+    # lever_arm None: the filter estimates it (12 states); the simulator declares it (0, 0, 0)
+    "gaps_lever_arm_states": (lambda: simulated(lever_arm=None), {}),
     "given_lever_arm": (lambda: simulated(lever_arm=(0.01, -0.02, 0.015)), {}),
     "no_lever_arm": (simulated, {"lever_arm_std": 0.0}),
     "gated_and_reacquired": (bad_fix, {}),
@@ -164,6 +165,7 @@ def test_cases_exercise_their_branches() -> None:
     assert counters["reset"]["resets"] >= 1
     assert counters["reset"]["initialised"] >= 2  # re-initialised after each reset
     assert counters["gaps_lever_arm_states"]["occluded"] > 0
+    assert run_filter(CASES["gaps_lever_arm_states"][0](), monitor=None).x.shape[1] == 12
     assert counters["long_silence"]["reacquired"] >= 1
     assert counters["long_silence"]["resets"] == 0  # fused after the silence, not reset
     recording, overrides = knocked(), MONITOR_CASES["knocks_shrinking"][1]
