@@ -366,8 +366,10 @@ def whole_transition(packed: np.ndarray, size: int) -> np.ndarray:
 
 
 @pytest.mark.parametrize("size", [9, 12])
-def test_position_update_equals_the_joseph_form(size: int) -> None:
-    """The hot-path update (expanded Joseph form, adjugate 3x3 inverse) against
+@pytest.mark.parametrize("r", [1e-6, 1e-12])
+def test_position_update_equals_the_joseph_form(size: int, r: float) -> None:
+    """The hot-path update (adjugate 3x3 inverse; the Joseph form expanded with R = 1e-6 m^2,
+    in filterpy's order with 1e-12, where S is up to 1e8 R: compiled.LOOSE_PRIOR) against
     ``covariance_update`` (the Joseph form with a LAPACK inverse), lever-arm columns in H."""
     rng = np.random.default_rng(4)
     for _ in range(20):
@@ -379,15 +381,16 @@ def test_position_update_equals_the_joseph_form(size: int) -> None:
         if size == 12:
             H[:, 9:12] = -random_rotation(rng)
         z = H @ x + rng.normal(size=3) * 0.01
-        r = 1e-6
         x_general, P_general = x.copy(), P.copy()
         compiled.covariance_update(x_general, P_general, z, H, np.eye(3) * r)
         PHT, S, S_inverse = np.empty((size, 3)), np.empty((3, 3)), np.empty((3, 3))
         compiled.innovation_covariance(P, H, r, PHT, S)
         compiled.inverse3(S, S_inverse)
         np.testing.assert_allclose(S_inverse @ S, np.eye(3), atol=1e-12)
-        compiled.position_update(x, P, z - H @ x, S_inverse, H, r, PHT, np.empty((size, 3)),
-                                 np.empty((size, size)))
+        assert (np.diag(S).max() > compiled.LOOSE_PRIOR * r) == (r < 1e-6)
+        compiled.position_update(x, P, z - H @ x, S_inverse, S, H, r, PHT,
+                                 np.empty((size, 3)), np.empty((size, size)), 0,
+                                 9 if size == 12 else -1)
         np.testing.assert_allclose(x, x_general, rtol=0, atol=1e-13)
         np.testing.assert_allclose(P, P_general, rtol=1e-9, atol=1e-18)
         np.testing.assert_array_equal(P, P.T)
@@ -440,8 +443,9 @@ def test_a_fix_on_a_far_looser_prior_keeps_the_posterior(size: int) -> None:
     compiled.innovation_covariance(P, H, noise_variance, PHT, S)
     compiled.inverse3(S, S_inverse)
     updated = P.copy()
-    compiled.position_update(x, updated, np.zeros(3), S_inverse, H, noise_variance, PHT,
-                             np.empty((size, 3)), np.empty((size, size)))
+    compiled.position_update(x, updated, np.zeros(3), S_inverse, S, H, noise_variance, PHT,
+                             np.empty((size, 3)), np.empty((size, size)), 0,
+                             9 if size == 12 else -1)
     output = H @ updated @ H.T
     np.testing.assert_allclose(output, H @ exact @ H.T, rtol=1e-6, atol=1e-15)
     assert np.diag(output) == pytest.approx([noise_variance] * 3, rel=1e-6)
