@@ -1209,7 +1209,7 @@ def update_step(t, visible, z, q_global_body, has_quaternion, x, P, orientation,
     if kind == _REACQUIRED and nis > config[C_GATE]:  # P inflated: S again
         innovation_covariance(P, H, noise_variance, PHT, S)
         inverse3(S, S_inverse)
-    scratch = work[0:n * n].reshape((n, n))  # the prediction's first product, free here
+    scratch = work_views(work, n)[0][0]  # the prediction's first product, free here
     position_update(x, P, y, S_inverse, S, H, noise_variance, PHT, K, scratch,
                     int(config[C_POSITION]), int(config[C_LEVER_STATE]))
     if has_orientation:

@@ -69,7 +69,6 @@ from kfusion.kalman.batch import (
     process_recording,
     resolve_parameters,
     row_position_covariances,
-    row_statuses,
     status_from_fixes,
 )
 from kfusion.kalman.engines import DEFAULT_ENGINE
@@ -229,11 +228,11 @@ def smoother_status(t: NDArray[np.float64], fixed: NDArray[np.bool_], max_bridge
     were 4-435 mm off (0.43 m/s^2 times tau^2) against 99 % bounds of 1.3-71 mm, 8x at worst
     (an adversarial review). The smoothed covariance holds no term for that orientation
     error, so the rows more than ``max_bridge_s`` after a fix are lost, as the filter's are
-    (within it the orientation is the one the monitor's shadow gaps test)."""
-    t = np.asarray(t, dtype=float)
-    fixed = np.asarray(fixed, dtype=bool)
-    last = np.maximum.accumulate(np.where(fixed, t, -np.inf))
-    return row_statuses(t - last, fixed, max_bridge_s, dead_reckoned, engine=engine)
+    (within it the orientation is the one the monitor's shadow gaps test). That is the filter's
+    :func:`kfusion.kalman.batch.status_from_fixes` with every row initialised."""
+    initialised = np.ones(len(np.asarray(t)), dtype=bool)
+    return status_from_fixes(t, fixed, initialised, max_bridge_s, dead_reckoned,
+                             engine=engine)[0]
 
 
 def nearest_fix_distance(t: NDArray[np.float64], fixed: NDArray[np.bool_]
