@@ -1,9 +1,9 @@
 """The compiled engine (:mod:`kfusion.kalman.compiled`) against the filterpy engine
 (:class:`kfusion.kalman.KalmanFusion`): the same rows within 1e-9 m, the same outcomes, statuses
 and counters, on simulated recordings that exercise every branch (gaps, a bad fix, re-acquisition,
-lever-arm states, resets, a 500 s silence, saturation, rejected samples, latency and a clock
-offset) and on the bundled BROAD excerpt. Plus one predict and one update step checked against
-hand-derived values.
+lever-arm states, resets, a 10 s silence, pauses long enough to forget the state, saturation,
+rejected samples, latency and a clock offset) and on the bundled BROAD excerpt. Plus one predict
+and one update step checked against hand-derived values.
 
 The kernels compile once per process (numba ``cache=True`` keeps the machine code on disk)."""
 
@@ -95,16 +95,37 @@ def reset_recording() -> Recording:
     return with_mocap(recording, position, quaternion, t)
 
 
-def long_silence() -> Recording:
-    """Both streams silent for 500 s half way (a capture paused, or a subject out of the
-    volume with the IMU unplugged): the first fix after it lands on a prior about 10^14 times
-    looser than the mocap noise, where an update that is not in Joseph order loses the
-    posterior covariance to rounding."""
+def paused(seconds: float) -> Recording:
+    """Both streams silent for ``seconds`` half way (a capture paused, or a subject out of
+    the volume with the IMU unplugged)."""
     recording = simulated()
     mocap, imu = recording.mocap, recording.imu
     half = mocap.t[len(mocap.t) // 2]
-    mocap_t = np.where(mocap.t >= half, mocap.t + 500.0, mocap.t)
-    imu_t = np.where(imu.t >= half, imu.t + 500.0, imu.t)
+    mocap_t = np.where(mocap.t >= half, mocap.t + seconds, mocap.t)
+    imu_t = np.where(imu.t >= half, imu.t + seconds, imu.t)
+    return dataclasses.replace(
+        with_mocap(recording, mocap.position, t=mocap_t),
+        imu=ImuSamples(t=imu_t, accelerometer=imu.accelerometer, gyroscope=imu.gyroscope))
+
+
+def long_silence() -> Recording:
+    """A 10 s pause (:func:`paused`): the first fix after it lands on a prior about 10^12
+    times looser than the mocap noise (position std 0.55 km, under
+    :data:`kfusion.kalman.model.FORGOTTEN_POSITION_STD`), where an update that is not in
+    Joseph order loses the posterior covariance to rounding."""
+    return paused(10.0)
+
+
+def forgotten_silence() -> Recording:
+    """Pauses of 500 s and 1e7 s (a capture left paused overnight, and far longer): the no-IMU
+    prediction passes :data:`kfusion.kalman.model.FORGOTTEN_POSITION_STD` and the state is
+    forgotten (a reset) before the fix, which initialises it again. Fused instead, the fix
+    after 1e7 s parted the engines by 4e-6 m."""
+    recording = paused(500.0)
+    mocap, imu = recording.mocap, recording.imu
+    late = mocap.t[3 * len(mocap.t) // 4]
+    mocap_t = np.where(mocap.t >= late, mocap.t + 1e7, mocap.t)
+    imu_t = np.where(imu.t >= late, imu.t + 1e7, imu.t)
     return dataclasses.replace(
         with_mocap(recording, mocap.position, t=mocap_t),
         imu=ImuSamples(t=imu_t, accelerometer=imu.accelerometer, gyroscope=imu.gyroscope))
@@ -127,14 +148,16 @@ CASES = {
     "broad_excerpt": (lambda: read_recording(broad_excerpt()), {}),
     "knocks": (knocked, {}),
     "long_silence": (long_silence, {}),
+    "forgotten_silence": (forgotten_silence, {}),
 }
 
 
 NIS_RTOL = {"long_silence": 1e-7}
-"""The NIS's relative tolerance where it is looser than 1e-9: after the 500 s silence the
-first fixes cut the velocity variance from 4.5e5 to about 5e-4 m^2/s^2, so the two engines'
-rounding orders (full products, sparse sums) part at eps times that 1e9: 2e-8 measured on the
-NIS, 2e-9 on the velocity's std, 2e-12 m on the positions."""
+"""The NIS's relative tolerance where it is looser than 1e-9: after a long silence the first
+fixes cut the velocity variance by 1e9 or more (from 4.5e5 to about 5e-4 m^2/s^2 after 500 s),
+so the two engines' rounding orders (full products, sparse sums) part at eps times that ratio
+(after 500 s: 2e-8 measured on the NIS, 2e-9 on the velocity's std, 2e-12 m on the
+positions)."""
 
 
 @pytest.mark.parametrize("case", list(CASES))
@@ -168,6 +191,8 @@ def test_cases_exercise_their_branches() -> None:
     assert run_filter(CASES["gaps_lever_arm_states"][0](), monitor=None).x.shape[1] == 12
     assert counters["long_silence"]["reacquired"] >= 1
     assert counters["long_silence"]["resets"] == 0  # fused after the silence, not reset
+    assert counters["forgotten_silence"]["resets"] == 2  # forgotten in each pause
+    assert counters["forgotten_silence"]["initialised"] == 3
     recording, overrides = knocked(), MONITOR_CASES["knocks_shrinking"][1]
     knocks = run_filter(recording, engine="compiled", **overrides)
     assert knocks.monitor is not None
@@ -422,7 +447,8 @@ def exact_update_covariance(P: np.ndarray, H: np.ndarray, noise_variance: float
 
 @pytest.mark.parametrize("size", [9, 12])
 def test_a_fix_on_a_far_looser_prior_keeps_the_posterior(size: int) -> None:
-    """A fix after 500 s without data: a prior position variance 4e11 times R. The update in
+    """A fix on a prior position variance 4e11 times R (500 s without data, a prior the filter
+    now forgets first: :data:`kfusion.kalman.model.FORGOTTEN_POSITION_STD`). The update in
     filterpy's Joseph order gives the exact posterior (rational arithmetic) to 1e-6; expanded,
     its position block was off by eps |P| (2e-6 m^2 against 9e-8), 5x the whole answer."""
     rng = np.random.default_rng(7)
@@ -861,8 +887,8 @@ def test_a_frame_stamped_out_of_row_order_is_smoothed_without_writing_past_the_b
         with pytest.raises(ValueError, match=rf"^smoother: mocap\.t: row {row} \(.* s\) is "
                            rf"earlier than row {row - 1} \(1003\.2 s\); the smoother needs"):
             run_smoother(recording, engine=engine, monitor=monitor)
-    filtered = run_filter(recording, engine="compiled")  # the filter fuses it in time order
-    assert filtered.outcome[row - 1] == "reacquired"
+    filtered = run_filter(recording, engine="compiled")  # the filter fuses it in time order,
+    assert filtered.outcome[row - 1] == "initialised"  # on a state forgotten over 1000 s
 
 
 def test_one_shared_output_matrix_gives_the_bits_of_one_per_row() -> None:

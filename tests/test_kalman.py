@@ -541,6 +541,36 @@ def test_implausible_samples_are_rejected_and_overflow_resets_the_state():
     assert np.isfinite(fusion.P).all() and fusion.estimate().status == TRACKED
 
 
+@pytest.mark.parametrize("engine", ["filterpy", "compiled"])
+def test_a_prediction_looser_than_a_kilometre_is_forgotten_before_the_next_fix(engine: str):
+    """Fixes 10 s apart without IMU samples are fused (the no-IMU prediction's position std is
+    0.55 km); fixes 1e15 s apart are not: the prediction passes FORGOTTEN_POSITION_STD, the
+    state is forgotten (a reset) and the fix initialises it. Fused instead, the fix landed on a
+    prior 1e52 times its own noise and the posterior was rounding: 1-3 mm off the fix with a
+    1 mm bound (an adversarial review)."""
+    from kfusion.kalman.compiled_fusion import CompiledFusion
+    from kfusion.kalman.model import FORGOTTEN_POSITION_STD
+
+    params = KalmanParameters(**QUIET)  # type: ignore[arg-type]
+    fusion = (KalmanFusion if engine == "filterpy" else CompiledFusion)(
+        IDENTITY, GRAVITY, params, lever_arm=np.zeros(3))
+    fusion.predict(0.0, np.array([0.0, 0.0, 9.81]), np.zeros(3))
+    fusion.update(0.0, np.zeros(3), IDENTITY)
+    near = np.array([0.4, -0.2, 1.1])
+    assert fusion.estimate(10.0).position_covariance[0, 0] < FORGOTTEN_POSITION_STD ** 2
+    assert fusion.update(10.0, near, IDENTITY).kind == REACQUIRED
+    assert fusion.counters["resets"] == 0
+    for k, t in enumerate((1e15, 2e15, 3e15)):
+        z = near + 0.1 * k
+        assert fusion.update(t, z, IDENTITY).kind == INITIALISED
+        assert fusion.counters["resets"] == k + 1
+        estimate = fusion.estimate()
+        assert estimate.status == TRACKED
+        np.testing.assert_array_equal(estimate.position, z)
+        np.testing.assert_allclose(np.diag(estimate.position_covariance),
+                                   params.mocap_position_noise ** 2, rtol=1e-12)
+
+
 def test_saturated_samples_are_flagged_and_inflate_the_noise():
     fusion = quiet_fusion(accelerometer_range=20.0)
     f = np.array([0.0, 0.0, 9.81])

@@ -724,9 +724,14 @@ def orientation_correct(orientation, q_measured, config):
     orientation[9] = bias - gain_bias * cross
 
 
+_FORGOTTEN_VARIANCE = model.FORGOTTEN_POSITION_STD ** 2
+
+
 @njit(cache=True)
-def state_finite(x, P, orientation):
-    """False when a propagation overflowed."""
+def state_usable(x, P, orientation, p):
+    """False when a propagation overflowed or left a position variance (the block from index p)
+    beyond :data:`kfusion.kalman.model.FORGOTTEN_POSITION_STD` squared
+    (:func:`kfusion.kalman.model.state_usable`)."""
     total = orientation[7] + orientation[8] + orientation[9] + (
         orientation[0] + orientation[1] + orientation[2] + orientation[3])
     if not math.isfinite(total):
@@ -738,6 +743,9 @@ def state_finite(x, P, orientation):
         for j in range(n):
             if not math.isfinite(P[i, j]):
                 return False
+    for i in range(3):
+        if not P[p + i, p + i] <= _FORGOTTEN_VARIANCE:
+            return False
     return True
 
 
@@ -857,7 +865,7 @@ def advance_without_imu(t, x, P, orientation, scalars, config, counters, interva
         if scalars[OUTAGE_SINCE_FIX] == 0.0:
             counters[14] += 1
         scalars[OUTAGE_SINCE_FIX] = 1.0
-        if not state_finite(x, P, orientation):
+        if not state_usable(x, P, orientation, int(config[C_POSITION])):
             reset(x, P, orientation, scalars, counters)
     if orientation[14] != 0.0:
         orientation[7] = _UNKNOWN_VARIANCE
@@ -938,7 +946,7 @@ def advance_with_imu(t, new_sample, f_end, omega_end, x, P, orientation, scalars
             pp, pv, vv, bb = noise_terms(dt, acceleration_variance, bias_variance, config)
             structured_predict(x, P, dt, blocks, control, pp, pv, vv, bb, config, products,
                                interval)
-        if not state_finite(x, P, orientation):
+        if not state_usable(x, P, orientation, int(config[C_POSITION])):
             reset(x, P, orientation, scalars, counters)
     scalars[TIME] = t
 

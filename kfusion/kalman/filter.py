@@ -81,7 +81,9 @@ cross-axis error (:func:`~kfusion.kalman.model.scale_error_variance`); the fast 
 error, which the bias cannot follow, and sample-to-sample jumps beyond the noise (impacts) count
 as acceleration noise (:func:`~kfusion.kalman.model.motion_acceleration_variance`,
 :func:`~kfusion.kalman.model.interpolation_variance`). A propagation that overflows (an
-absurd interval) forgets the state (``resets``): the output is ``lost`` until the next fix.
+absurd interval) or leaves the position std beyond 1 km (minutes without a fix,
+:data:`~kfusion.kalman.model.FORGOTTEN_POSITION_STD`) forgets the state (``resets``): the output
+is ``lost`` until the next fix with an orientation.
 """
 
 from __future__ import annotations
@@ -154,7 +156,8 @@ COUNTER_NAMES: Final = (
 reacquired and initialised); ``no_orientation`` counts fixes without a quaternion before the
 orientation was known (treated as occluded); ``imu_dropouts`` intervals longer than
 ``imu_dropout_s``; ``imu_late`` samples not after the state's time; ``resets`` propagations that
-overflowed (the state is then forgotten and re-initialised by the next fix); ``imu_rejected``
+overflowed or left the position std beyond 1 km (the state is then forgotten and re-initialised
+by the next fix); ``imu_rejected``
 samples with NaN, inf or a value beyond :data:`kfusion.kalman.model.IMPLAUSIBLE_SAMPLE`;
 ``imu_outages`` intervals propagated without IMU (:mod:`kfusion.streamhealth`);
 ``orientation_gated`` fixes whose orientation failed the gyroscope gate (position still used);
@@ -838,7 +841,7 @@ class KalmanFusion:
             if not self._outage_since_fix:
                 self._counters["imu_outages"] += 1
             self._outage_since_fix = True
-            if not self._finite():
+            if not self._usable():
                 self._reset()
         state = self._orientation.state
         if state.initialised:
@@ -899,7 +902,7 @@ class KalmanFusion:
                 self._symmetrise()
                 if self._interval is not None:
                     self._interval = F @ self._interval
-            if not self._finite():
+            if not self._usable():
                 self._reset()
         self._time = t
 
@@ -1135,11 +1138,13 @@ class KalmanFusion:
         P[model.VELOCITY, model.VELOCITY] += velocity_variance * np.eye(3)
         self._kf.P = P
 
-    def _finite(self) -> bool:
-        """False when a propagation overflowed (an interval of 1e200 s, say)."""
+    def _usable(self) -> bool:
+        """False when a propagation overflowed (an interval of 1e200 s, say) or left the
+        position std beyond :data:`~kfusion.kalman.model.FORGOTTEN_POSITION_STD` (a pause of
+        minutes without fixes): :func:`kfusion.kalman.model.state_usable`."""
         state = self._orientation.state
         return bool(math.isfinite(sum(state.covariance) + sum(state.quaternion))
-                    and np.isfinite(self._kf.x).all() and np.isfinite(self._kf.P).all())
+                    and model.state_usable(self._kf.x, self._kf.P, model.POSITION))
 
     def _reset(self) -> None:
         """Forget position and orientation: the state is unknown (``lost``) until a fix with an

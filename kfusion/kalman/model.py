@@ -519,6 +519,25 @@ LOW_PASS_TIME_CONSTANT = 0.1
 to average out the ringing of an impact, short against a limb movement)."""
 SCALE_ERROR_COHERENCE_S = 0.5
 """s: time over which a limb's specific force changes coherently (a reach lasts 0.5-1 s)."""
+FORGOTTEN_POSITION_STD = 1000.0
+"""m: a prediction whose position 1-sigma exceeds this on some axis says nothing about where the
+body is (a motion-capture volume is tens of metres across). The state is then forgotten
+(``resets``), as when a propagation overflows: ``lost`` until a fix with an orientation
+initialises it again (:func:`state_usable`). The no-IMU model (``Q_pp = q^2 dt^3 / 3`` with q =
+30 m/s^2/sqrt(Hz)) gets there after 15 s without IMU samples or fixes; the IMU alone after minutes
+without fixes. A fix on such a prior would otherwise be fused into a covariance 1e13 or more
+times its own noise, where rounding is all that is left of the posterior (after a 1e5 s pause the
+two engines parted by 1e-9 m, after 1e7 s by 4e-6 m, and three frames 1e15 s apart were fused
+1 mm off with a 1 mm bound)."""
+
+
+def state_usable(x: NDArray[np.float64], P: NDArray[np.float64],
+                 position: slice = slice(0, 3)) -> bool:
+    """True when the state x (n,) and its covariance P (n, n) are finite and no position
+    variance (the ``position`` block's diagonal, m^2) exceeds ``FORGOTTEN_POSITION_STD^2``."""
+    if not (np.isfinite(x).all() and np.isfinite(P).all()):
+        return False
+    return bool(np.diagonal(P)[position].max() <= FORGOTTEN_POSITION_STD ** 2)
 
 
 def low_pass_weight(dt: float, time_constant: float = LOW_PASS_TIME_CONSTANT) -> float:
