@@ -95,6 +95,16 @@ def reset_recording() -> Recording:
     return with_mocap(recording, position, quaternion, t)
 
 
+def clipped_below_range() -> Recording:
+    """A fast reach whose gyroscope clips at 3 rad/s, far below the profile's 1000 dps: the
+    plateau test (:func:`kfusion.kalman.model.plateau_step`) saturates its samples."""
+    from kfusion.simulate import faults
+
+    reach = simulate("random_reach", seed=1, duration=6.0,
+                     occlusions=OcclusionSpec(gap_range=(0.15, 0.6), spacing=1.0)).recording
+    return faults.imu_clips(faults.Streams.of(reach), gyroscope_range=3.0).recording
+
+
 def paused(seconds: float) -> Recording:
     """Both streams silent for ``seconds`` half way (a capture paused, or a subject out of
     the volume with the IMU unplugged)."""
@@ -149,6 +159,7 @@ CASES = {
     "knocks": (knocked, {}),
     "long_silence": (long_silence, {}),
     "forgotten_silence": (forgotten_silence, {}),
+    "clipped_below_range": (clipped_below_range, {}),
 }
 
 
@@ -193,6 +204,7 @@ def test_cases_exercise_their_branches() -> None:
     assert counters["long_silence"]["resets"] == 0  # fused after the silence, not reset
     assert counters["forgotten_silence"]["resets"] == 2  # forgotten in each pause
     assert counters["forgotten_silence"]["initialised"] == 3
+    assert counters["clipped_below_range"]["gyroscope_saturated"] >= 100
     recording, overrides = knocked(), MONITOR_CASES["knocks_shrinking"][1]
     knocks = run_filter(recording, engine="compiled", **overrides)
     assert knocks.monitor is not None
@@ -931,3 +943,27 @@ def test_one_shared_output_matrix_gives_the_bits_of_one_per_row() -> None:
     varying = output_matrices(rows, 12, True)
     assert varying.flags.writeable and varying.shape == (rows, 3, 12) and not varying.any()
     np.testing.assert_array_equal(output_matrix_rows(varying, chosen), varying[chosen])
+
+
+def test_the_compiled_plateau_test_equals_the_model_s() -> None:
+    """compiled.plateau_level against model.plateau_step on quantised random walks that clip
+    (both sensors' floors): the same top, repeats and saturated samples, sample by sample."""
+    from kfusion.kalman import model
+
+    rng = np.random.default_rng(4)
+    for floor in (model.PLATEAU_FLOOR_ACCELEROMETER, model.PLATEAU_FLOOR_GYROSCOPE):
+        level = 1.3 * floor
+        walk = np.cumsum(rng.normal(scale=0.15 * floor, size=(3000, 3)), axis=0)
+        samples = np.clip(np.round(walk / (0.01 * floor)) * 0.01 * floor, -level, level)
+        scalars = compiled.initial_scalars()
+        top, repeats, previous, saturated = 0.0, 0, None, 0
+        for sample in samples:
+            top, repeats, flat = model.plateau_step(sample, previous, top, repeats, floor)
+            found = compiled.plateau_level(sample, scalars, compiled.ACCELEROMETER,
+                                           compiled.ACCELEROMETER_PLATEAU, floor)
+            assert found == (top if flat else 0.0)
+            assert (scalars[compiled.ACCELEROMETER_PLATEAU],
+                    scalars[compiled.ACCELEROMETER_PLATEAU + 1]) == (top, repeats)
+            scalars[compiled.ACCELEROMETER:compiled.ACCELEROMETER + 3] = sample
+            previous, saturated = sample, saturated + flat
+        assert saturated > 100  # the walk does clip

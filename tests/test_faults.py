@@ -221,3 +221,15 @@ def test_mocap_orientation_drift_grows_linearly_to_its_size(streams):
         angle = np.degrees(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1, 1)))
         assert angle == pytest.approx(5.0 * fraction[row], abs=1e-6)
     np.testing.assert_array_equal(mocap.position, before.position)
+
+
+def test_imu_clips_flattens_each_axis_at_its_level(streams):
+    clipped = fault.imu_clips(streams, accelerometer_range=10.0, gyroscope_range=0.5)
+    imu, before = clipped.recording.imu, streams.recording.imu
+    np.testing.assert_array_equal(imu.accelerometer, np.clip(before.accelerometer, -10.0, 10.0))
+    np.testing.assert_array_equal(imu.gyroscope, np.clip(before.gyroscope, -0.5, 0.5))
+    assert (np.abs(before.accelerometer) > 10.0).any()  # the levels do cut this recording
+    assert (np.abs(before.gyroscope) > 0.5).any()
+    assert clipped.recording.mocap is streams.recording.mocap
+    only_gyroscope = fault.imu_clips(streams, gyroscope_range=0.5).recording.imu
+    np.testing.assert_array_equal(only_gyroscope.accelerometer, before.accelerometer)

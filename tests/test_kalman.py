@@ -571,6 +571,64 @@ def test_a_prediction_looser_than_a_kilometre_is_forgotten_before_the_next_fix(e
                                    params.mocap_position_noise ** 2, rtol=1e-12)
 
 
+def test_the_plateau_test_by_hand():
+    """model.plateau_step on one axis, floor 1.96 rad/s: a level becomes a clip on its 4th
+    exact repeat; a sample above it clears the evidence (it was a peak)."""
+    from kfusion.kalman.model import plateau_step
+
+    floor = 1.96
+    top, repeats, previous = 0.0, 0, None
+    expected = [  # value on x: (top, repeats, saturated) after it
+        (1.0, (1.0, 0, False)),
+        (3.0, (3.0, 0, False)),
+        (3.0, (3.0, 1, False)),  # an exact repeat at the top
+        (3.0, (3.0, 2, False)),
+        (3.0, (3.0, 3, False)),
+        (3.0, (3.0, 4, True)),  # the 4th: a clipping level
+        (2.95, (3.0, 4, True)),  # within 2 % of it (axes clip a few per cent apart)
+        (2.9, (3.0, 4, False)),
+        (2.9, (3.0, 4, False)),  # a repeat below the top adds nothing
+        (3.1, (3.1, 0, False)),  # above the level: it was a peak, not a clip
+    ]
+    for value, after in expected:
+        sample = (value, 0.5, -0.2)
+        top, repeats, saturated = plateau_step(sample, previous, top, repeats, floor)
+        assert (top, repeats, saturated) == after, value
+        previous = sample
+    # a still sensor's quantised top repeats below the floor: never a range
+    top, repeats, previous = 0.0, 0, None
+    for _ in range(50):
+        top, repeats, saturated = plateau_step((1.5, 0.0, 0.0), previous, top, repeats, floor)
+        previous = (1.5, 0.0, 0.0)
+        assert not saturated and repeats == 0
+
+
+@pytest.mark.parametrize("engine", ["filterpy", "compiled"])
+def test_a_sensor_clipping_below_its_declared_range_is_saturated(engine: str):
+    """A gyroscope flat at 3 rad/s while the profile says 1000 dps: from the 4th repeat of the
+    level on, its samples are saturated and held with the variance of a range at that level,
+    (3/2)^2 (rad/s)^2, as if the level had been declared; a sample off the level is not."""
+    from kfusion.kalman import compiled
+    from kfusion.kalman.compiled_fusion import CompiledFusion
+
+    params = KalmanParameters(**QUIET)  # type: ignore[arg-type]
+    fusion = (KalmanFusion if engine == "filterpy" else CompiledFusion)(
+        IDENTITY, GRAVITY, params, lever_arm=np.zeros(3))
+
+    def held_variance() -> float:  # the extra variance of the held gyroscope sample
+        if isinstance(fusion, KalmanFusion):
+            return fusion._gyroscope_extra_variance
+        return float(fusion._scalars[compiled.GYROSCOPE_EXTRA])
+
+    f = np.array([0.0, 0.0, 9.81])
+    for k, (rate, variance) in enumerate([(0.5, 0.0), (3.0, 0.0), (3.0, 0.0), (3.0, 0.0),
+                                          (3.0, 0.0), (3.0, 2.25), (2.0, 0.0)]):
+        fusion.predict(0.01 * k, f, np.array([0.0, -rate, 0.0]))
+        assert held_variance() == variance, k
+    assert fusion.counters["gyroscope_saturated"] == 1
+    assert fusion.counters["accelerometer_saturated"] == 0
+
+
 def test_saturated_samples_are_flagged_and_inflate_the_noise():
     fusion = quiet_fusion(accelerometer_range=20.0)
     f = np.array([0.0, 0.0, 9.81])

@@ -286,6 +286,55 @@ def test_every_broad_trial_passes_the_diagnosis():
         assert diagnosis.ok, (path.stem, diagnosis.problems)
 
 
+@pytest.mark.parametrize("degrees_per_second", [300.0, 400.0])
+def test_a_gyroscope_clipping_below_its_range_is_named_not_read_as_a_clock_offset(
+        degrees_per_second: float):
+    """The bundled BROAD excerpt (fast arm motion) with its gyroscope flat at 300 or 400 dps,
+    below its profile's 2000: the diagnosis names the clipping in a note and finds no mistake.
+    At 300 dps 69 % of the samples clip, and the clock is not timed by the rest (before, it
+    was timed on the flat tops too)."""
+    from kfusion.datasets import broad_excerpt
+    from kfusion.recording import read_recording
+    from kfusion.simulate import faults
+
+    recording = read_recording(broad_excerpt())
+    assert diagnose(recording).ok
+    level = np.radians(degrees_per_second)
+    clipped = faults.imu_clips(faults.Streams.of(recording), None, level).recording
+    diagnosis = diagnose(clipped)
+    assert diagnosis.ok, diagnosis.problems
+    assert any(note.startswith(f"gyroscope clips at {level:.3g} rad/s "
+                               f"({degrees_per_second:.3g} dps) on ")
+               for note in diagnosis.notes), diagnosis.notes
+    timed = any(note.startswith("clock: offset") for note in diagnosis.notes)
+    assert timed == (degrees_per_second == 400.0), diagnosis.notes
+
+
+def test_a_broad_trial_clipping_at_250_dps_is_not_read_as_a_clock_offset():
+    """BROAD trial 21's first 40 s with the gyroscope flat at 250 dps (the MPU-9250's power-on
+    range) and the accelerometer at 2 g: before, the flat tops moved the rate correlation's
+    peak and ``kfusion check`` and ``kfusion track`` refused the recording with "IMU clock
+    about 23 ms behind the mocap", a clock fix that would have made it wrong."""
+    try:
+        from kfusion.datasets import broad_trials
+        trials = [path for path in broad_trials() if path.name.startswith("21")]
+    except ValueError:
+        pytest.skip("BROAD trials not found (../shared/data/broad): skipping the real-data check")
+    from kfusion.config import first_seconds
+    from kfusion.readers.broad import read_broad
+    from kfusion.simulate import faults
+
+    recording = first_seconds(read_broad(trials[0], mocap_step=3), 40.0)
+    clipped = faults.imu_clips(faults.Streams.of(recording), 2.0 * 9.80665,
+                               np.radians(250.0)).recording
+    diagnosis = diagnose(clipped)
+    assert diagnosis.ok, diagnosis.problems
+    assert [note.split(" on ")[0] for note in diagnosis.notes if " clips at " in note] == [
+        "accelerometer clips at 19.6 m/s^2 (2 g)", "gyroscope clips at 4.36 rad/s (250 dps)"]
+    offset = [note for note in diagnosis.notes if note.startswith("clock: offset")]
+    assert offset and abs(float(offset[0].split()[2])) < 5.0, offset  # ms
+
+
 def test_recording_info_clock_and_noise_keys():
     data = {"imu_to_body": [1, 0, 0, 0], "gravity": [0, -9.81, 0], "imu_time_offset": 0.137,
             "imu_clock_drift_ppm": -20, "imu_noise": {"accelerometer_noise_density": 0.003}}

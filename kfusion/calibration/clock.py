@@ -223,11 +223,14 @@ def parabola_peak(values: ArrayLike) -> float:
 
 
 def coarse_clock_offset(recording: Recording, *, max_offset: float = DEFAULT_MAX_OFFSET_S,
-                        centre: float = 0.0, step: float = CORRELATION_STEP_S
-                        ) -> Correlation:
+                        centre: float = 0.0, step: float = CORRELATION_STEP_S,
+                        clipped: NDArray[np.bool_] | None = None) -> Correlation:
     """The lag maximising the correlation of ``|w_gyro|`` and ``|w_mocap|``, searched over
     ``centre +- max_offset`` s. Independent of the mount. The recording's own clock fields are
-    ignored: the lag is measured on the raw IMU stamps.
+    ignored: the lag is measured on the raw IMU stamps. ``clipped`` (n,) bool marks IMU samples
+    on a plateau (:func:`kfusion.calibration.diagnosis.clipped_samples`): the gyroscope's mean
+    rate is not compared where its interval touches one (a flat-topped rate would shift the
+    peak: 25 ms on a BROAD trial clipped at 250 dps).
 
     Raises ValueError when no lag has enough overlap (at least 5 s or a quarter of the mocap),
     or when ``max_offset`` is not a number in (0, :data:`LARGEST_MAX_OFFSET_S`].
@@ -251,6 +254,13 @@ def coarse_clock_offset(recording: Recording, *, max_offset: float = DEFAULT_MAX
                             - np.interp(shifted - width / 2, imu.t, integral[:, axis])
                             for axis in range(3)]) / width
     gyro_mask = ((shifted - width / 2 >= imu.t[0]) & (shifted + width / 2 <= imu.t[-1]))
+    if clipped is not None and clipped.any():
+        # clipped samples inside the interval or next to its ends (the interpolation's)
+        count = np.concatenate([[0], np.cumsum(clipped)])
+        first = np.maximum(np.searchsorted(imu.t, shifted - width / 2, side="left") - 1, 0)
+        last = np.minimum(np.searchsorted(imu.t, shifted + width / 2, side="right") + 1,
+                          len(imu.t))
+        gyro_mask &= count[last] - count[first] == 0
     gyro_magnitude = np.linalg.norm(gyro, axis=1)
     mocap_magnitude, mocap_mask = _masked_grid(rates.middle, np.linalg.norm(rates.rate, axis=1),
                                                grid, 0.75 * width)
@@ -265,7 +275,9 @@ def coarse_clock_offset(recording: Recording, *, max_offset: float = DEFAULT_MAX
         raise ValueError(f"cannot correlate the clocks: the IMU ({imu.t[0]:.3f}-{imu.t[-1]:.3f} "
                          f"s) and the visible mocap ({mocap.t[0]:.3f}-{mocap.t[-1]:.3f} s) "
                          f"overlap by less than {min_overlap * step:.1f} s at any offset within "
-                         f"{centre:+.1f} +- {max_offset:g} s")
+                         f"{centre:+.1f} +- {max_offset:g} s"
+                         + (" once the clipped samples are left out"
+                            if clipped is not None and clipped.any() else ""))
     best = int(np.nanargmax(r))
     fraction = 0.0
     if 0 < best < len(r) - 1 and np.isfinite(r[best - 1:best + 2]).all():

@@ -8,6 +8,11 @@ mistake found (later tests assume the earlier ones passed):
    on ``mocap.csv``'s rigid body (:func:`kfusion.calibration.marker_fit.marker_problem`);
 1. time units: one stream's time span about 1000 times the other's (ms instead of s);
 2. time overlap of the IMU and the mocap;
+   then a note for each IMU sensor that clips below its profile's range (a flat top,
+   :func:`kfusion.kalman.model.plateau_level`); the frames within :data:`CLIPPED_MARGIN_S` of a
+   clipped sample are left out of the tests below, whose rates and accelerations the clipped
+   samples would bend (a gyroscope flat at 250 dps on a fast trial read as a 25 ms clock
+   offset);
 3. quaternion order: the rate-magnitude correlation is much better with the mocap quaternion
    columns read as x, y, z, w;
 4. clock: the correlation's peak more than :data:`CLOCK_TOLERANCE_S` from zero;
@@ -66,6 +71,7 @@ from kfusion.calibration.specific_force import (
     specific_force_system,
 )
 from kfusion.conventions import matrix_from_wxyz, median_interval, rotation_from_wxyz
+from kfusion.kalman import model
 from kfusion.recording import (
     ImuSamples,
     MocapFrames,
@@ -74,6 +80,9 @@ from kfusion.recording import (
     without_held_frames,
 )
 
+CLIPPED_MARGIN_S: Final = 0.1
+"""s: mocap frames this close to a clipped IMU sample are left out of the consistency tests (the
+rate and acceleration estimators span a few frames, and the clock may be off by tens of ms)."""
 CLOCK_TOLERANCE_S: Final = 0.010
 """s: a coarse (rate-correlation) clock offset beyond this is reported (1 m/s of arm speed
 turns 10 ms into 10 mm)."""
@@ -137,6 +146,41 @@ class Diagnosis:
     @property
     def ok(self) -> bool:
         return not self.problems
+
+
+def clipped_samples(imu: ImuSamples) -> tuple[np.ndarray, list[str]]:
+    """IMU samples (n,) bool on a plateau of either sensor (an axis at
+    :data:`~kfusion.kalman.model.PLATEAU_TOLERANCE` of the level :func:`kfusion.kalman.model.
+    plateau_level` finds, or beyond), and one note per clipping sensor naming its level."""
+    clipped = np.zeros(len(imu.t), dtype=bool)
+    notes = []
+    for name, values, floor, unit, other, scale in (
+            ("accelerometer", imu.accelerometer, model.PLATEAU_FLOOR_ACCELEROMETER, "m/s^2",
+             "g", 1.0 / 9.80665),
+            ("gyroscope", imu.gyroscope, model.PLATEAU_FLOOR_GYROSCOPE, "rad/s", "dps",
+             180.0 / np.pi)):
+        level = model.plateau_level(values, floor)
+        if level is None:
+            continue
+        flat = np.max(np.abs(values), axis=1) >= model.PLATEAU_TOLERANCE * level
+        clipped |= flat
+        notes.append(f"{name} clips at {level:.3g} {unit} ({level * scale:.3g} {other}) on "
+                     f"{int(flat.sum())} samples ({flat.mean():.1%}): a flat top below the "
+                     "profile's range; kfusion track saturates those samples, as if that "
+                     "range were declared")
+    return clipped, notes
+
+
+def without_frames_near(recording: Recording, times: np.ndarray, margin: float) -> Recording:
+    """``recording`` with its mocap frames within ``margin`` s of any of ``times`` (s, sorted)
+    occluded (position and quaternion NaN)."""
+    mocap = recording.mocap
+    after = np.searchsorted(times, mocap.t - margin, side="left")
+    near = (after < len(times)) & (times[np.minimum(after, len(times) - 1)] <= mocap.t + margin)
+    position, quaternion = np.array(mocap.position), np.array(mocap.quaternion)
+    position[near], quaternion[near] = np.nan, np.nan
+    return recording.with_mocap(dataclasses.replace(mocap, position=position,
+                                                    quaternion=quaternion))
 
 
 def _span(t: np.ndarray) -> float:
@@ -411,12 +455,14 @@ def _diagnose(recording: Recording, imu_latency_s: float) -> Diagnosis:
                           f" s and the visible mocap {_seconds(mocap[0])}-{_seconds(mocap[-1])} "
                           f"s ({len(mocap)} frames; overlap {max(overlap, 0.0):.3f} s): check "
                           f"both files' t column (same clock, seconds) or {CALIBRATE_FIX}"])
-    try:
-        correlation = coarse_clock_offset(recording)
+    clipped, clipping = clipped_samples(recording.imu)
+    notes += clipping
+    try:  # the whole mocap: the clipped samples are masked on the gyroscope's side
+        correlation = coarse_clock_offset(recording, clipped=clipped)
     except ValueError as error:
-        return Diagnosis(notes=[f"clock and mount not checked: {error}"])
+        return Diagnosis(notes=[*notes, f"clock and mount not checked: {error}"])
     try:
-        swapped = coarse_clock_offset(_reordered(recording))
+        swapped = coarse_clock_offset(_reordered(recording), clipped=clipped)
         if swapped.peak > max(correlation.peak + 0.2, 0.8):
             return Diagnosis([f"quaternion columns look like x, y, z, w: the mocap rates match "
                               f"the gyroscope with qw read from the last column (correlation "
@@ -424,6 +470,8 @@ def _diagnose(recording: Recording, imu_latency_s: float) -> Diagnosis:
                               "mocap.csv's quaternion as qw, qx, qy, qz"], correlation=swapped)
     except ValueError:
         pass
+    if clipped.any():  # the tests below pair the mocap with the IMU at the offset found
+        recording = without_frames_near(recording, recording.imu.t[clipped], CLIPPED_MARGIN_S)
     offset = correlation.offset
     unique = correlation.peak >= CLEAR_CORRELATION or (
         correlation.peak - correlation.runner_up >= MIN_PEAK_MARGIN)

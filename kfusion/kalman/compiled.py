@@ -68,7 +68,8 @@ LOW_PASS = 11  # low-passed specific force (3); NaN in LOW_PASS: none yet
 LAST_FIX, LAST_NIS, LAST_ORIENTATION_FIX, IMU_INTERVAL = 14, 15, 16, 17
 INITIALISED_FLAG, LAST_FRAME_FUSED, OUTAGE_SINCE_FIX = 18, 19, 20
 LAST_IMPACT = 21  # time of the last impact, s (-inf: none; KalmanFusion.last_impact_t)
-SCALAR_COUNT: Final = 22
+ACCELEROMETER_PLATEAU, GYROSCOPE_PLATEAU = 22, 24  # (top, repeats) each: model.plateau_step
+SCALAR_COUNT: Final = 26
 ORIENTATION_SIZE: Final = 19
 INNOVATION_MEAN, INNOVATION_SQUARE = 15, 18  # OrientationState.innovation_mean (3), _square
 
@@ -145,6 +146,8 @@ def initial_scalars() -> NDArray[np.float64]:
     scalars[ACCELEROMETER_EXTRA] = scalars[GYROSCOPE_EXTRA] = 0.0
     scalars[INITIALISED_FLAG] = scalars[LAST_FRAME_FUSED] = scalars[OUTAGE_SINCE_FIX] = 0.0
     scalars[LAST_IMPACT] = -math.inf
+    scalars[ACCELEROMETER_PLATEAU:ACCELEROMETER_PLATEAU + 2] = 0.0
+    scalars[GYROSCOPE_PLATEAU:GYROSCOPE_PLATEAU + 2] = 0.0
     return scalars
 
 
@@ -174,6 +177,10 @@ _is_impact = njit(cache=True)(model.is_impact)
 _interpolation_variance = njit(cache=True)(model.interpolation_variance)
 _persistent_innovations = njit(cache=True)(persistent_innovations)
 _SATURATION_FRACTION = model.SATURATION_FRACTION
+_PLATEAU_REPEATS = model.PLATEAU_REPEATS
+_PLATEAU_TOLERANCE = model.PLATEAU_TOLERANCE
+_PLATEAU_FLOOR_ACCELEROMETER = model.PLATEAU_FLOOR_ACCELEROMETER
+_PLATEAU_FLOOR_GYROSCOPE = model.PLATEAU_FLOOR_GYROSCOPE
 _IMPLAUSIBLE = model.IMPLAUSIBLE_SAMPLE
 
 
@@ -1002,6 +1009,31 @@ def limit_into(sample, sensor_range, out):
 
 
 @njit(cache=True, inline="always")
+def plateau_level(sample, scalars, held, plateau, floor):
+    """:func:`kfusion.kalman.model.plateau_step` of ``sample`` (3,) against the held sample
+    ``scalars[held:held + 3]``, on the test's state ``scalars[plateau:plateau + 2]`` (top,
+    repeats), in place. Returns the plateau's level when the sample is saturated on it, else
+    0."""
+    top = scalars[plateau]
+    repeats = scalars[plateau + 1]
+    largest = max(abs(sample[0]), abs(sample[1]), abs(sample[2]))
+    if largest > top:
+        top = largest
+        repeats = 0.0
+    for axis in range(3):
+        value = abs(sample[axis])
+        if value >= floor and value >= _SATURATION_FRACTION * top \
+                and sample[axis] == scalars[held + axis]:
+            repeats += 1.0
+            break
+    scalars[plateau] = top
+    scalars[plateau + 1] = repeats
+    if repeats >= _PLATEAU_REPEATS and largest >= _PLATEAU_TOLERANCE * top:
+        return top
+    return 0.0
+
+
+@njit(cache=True, inline="always")
 def predict_step(stamp, f_raw, omega_raw, x, P, orientation, scalars, config, counters,
                  interval, work):
     """One finite IMU sample with a stamp after the last (:meth:`KalmanFusion.
@@ -1016,9 +1048,17 @@ def predict_step(stamp, f_raw, omega_raw, x, P, orientation, scalars, config, co
         return
     f, omega = work_views(work, x.shape[0])[8:10]
     acc_extra = limit_into(f_raw, config[C_ACC_RANGE], f)
+    level = plateau_level(f_raw, scalars, ACCELEROMETER, ACCELEROMETER_PLATEAU,
+                          _PLATEAU_FLOOR_ACCELEROMETER)
+    if acc_extra == 0.0 and level > 0.0:  # clipping below the range: a plateau
+        acc_extra = 0.25 * level * level
     if acc_extra != 0.0:
         counters[5] += 1
     gyro_extra = limit_into(omega_raw, config[C_GYRO_RANGE], omega)
+    level = plateau_level(omega_raw, scalars, GYROSCOPE, GYROSCOPE_PLATEAU,
+                          _PLATEAU_FLOOR_GYROSCOPE)
+    if gyro_extra == 0.0 and level > 0.0:
+        gyro_extra = 0.25 * level * level
     if gyro_extra != 0.0:
         counters[6] += 1
     t = stamp - config[C_LATENCY]

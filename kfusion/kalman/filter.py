@@ -275,6 +275,8 @@ class KalmanSnapshot:
     frames_on_gyroscope: int = 0
     layout: LayoutResiduals | None = None
     last_impact_t: float = -math.inf
+    accelerometer_plateau: tuple[float, int] = (0.0, 0)
+    gyroscope_plateau: tuple[float, int] = (0.0, 0)
 
 
 def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
@@ -405,6 +407,9 @@ class KalmanFusion:
         self._gyroscope: Vector3 | None = None
         self._accelerometer_extra_variance = 0.0
         self._gyroscope_extra_variance = 0.0
+        # (top, repeats) of each sensor's plateau test (model.plateau_step)
+        self._accelerometer_plateau: tuple[float, int] = (0.0, 0)
+        self._gyroscope_plateau: tuple[float, int] = (0.0, 0)
         self._accelerometer_low_pass: Vector3 | None = None
         self._initialised = False
         self._last_fix: float | None = None
@@ -690,6 +695,8 @@ class KalmanFusion:
             gyroscope=self._gyroscope,
             accelerometer_extra_variance=self._accelerometer_extra_variance,
             gyroscope_extra_variance=self._gyroscope_extra_variance,
+            accelerometer_plateau=self._accelerometer_plateau,
+            gyroscope_plateau=self._gyroscope_plateau,
             accelerometer_low_pass=self._accelerometer_low_pass,
             initialised=self._initialised,
             last_fix=self._last_fix,
@@ -723,6 +730,8 @@ class KalmanFusion:
         self._gyroscope = snapshot.gyroscope
         self._accelerometer_extra_variance = snapshot.accelerometer_extra_variance
         self._gyroscope_extra_variance = snapshot.gyroscope_extra_variance
+        self._accelerometer_plateau = snapshot.accelerometer_plateau
+        self._gyroscope_plateau = snapshot.gyroscope_plateau
         self._accelerometer_low_pass = snapshot.accelerometer_low_pass
         self._initialised = snapshot.initialised
         self._last_fix = snapshot.last_fix
@@ -745,9 +754,17 @@ class KalmanFusion:
                abs(omega[2])) > model.IMPLAUSIBLE_SAMPLE:
             self._counters["imu_rejected"] += 1
             return REJECTED
+        top, repeats, flat = model.plateau_step(f, self._accelerometer,
+                                                *self._accelerometer_plateau,
+                                                model.PLATEAU_FLOOR_ACCELEROMETER)
+        self._accelerometer_plateau = (top, repeats)
         f, accelerometer_extra = self._limit(f, params.accelerometer_range,
-                                             "accelerometer_saturated")
-        omega, gyroscope_extra = self._limit(omega, params.gyroscope_range, "gyroscope_saturated")
+                                             "accelerometer_saturated", top if flat else None)
+        top, repeats, flat = model.plateau_step(omega, self._gyroscope, *self._gyroscope_plateau,
+                                                model.PLATEAU_FLOOR_GYROSCOPE)
+        self._gyroscope_plateau = (top, repeats)
+        omega, gyroscope_extra = self._limit(omega, params.gyroscope_range, "gyroscope_saturated",
+                                             top if flat else None)
         t = imu_event_time(stamp, params.imu_latency_s)
         if self._imu_time is not None and t - self._imu_time > params.imu_dropout_s:
             self._counters["imu_dropouts"] += 1
@@ -767,17 +784,22 @@ class KalmanFusion:
         self._counters["predictions"] += 1
         return PREDICTED
 
-    def _limit(self, sample: Vector3, sensor_range: float, counter: str
-               ) -> tuple[Vector3, float]:
+    def _limit(self, sample: Vector3, sensor_range: float, counter: str,
+               plateau: float | None = None) -> tuple[Vector3, float]:
         """A saturated sample (an axis at 99.9 % of the range or beyond) is counted, clipped to
         the range (what the sensor can report) and given :func:`model.saturation_variance`.
+        So is a sample on a plateau below the range (``plateau``: its level, from
+        :func:`model.plateau_step`), with the plateau's level as the range.
 
         The variance is held over the interval after the sample only: under the first-order hold
         the sample's error ramps in over the interval before it and out over the one after,
         moving the velocity by the same ``dt e`` as one interval of a held error."""
         if max(abs(sample[0]), abs(sample[1]), abs(sample[2])) < (model.SATURATION_FRACTION
                                                                    * sensor_range):
-            return sample, 0.0
+            if plateau is None:
+                return sample, 0.0
+            self._counters[counter] += 1
+            return sample, model.saturation_variance(plateau)
         self._counters[counter] += 1
         return _clipped(sample, sensor_range), model.saturation_variance(sensor_range)
 

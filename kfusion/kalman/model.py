@@ -61,6 +61,59 @@ SATURATION_FRACTION = 0.999
 IMPLAUSIBLE_SAMPLE = 1e6
 """An IMU value beyond this (m/s^2 or rad/s: 100 000 g, 160 000 rev/s) is corrupt: rejected."""
 
+# A sensor clipping below its declared range (a chip left at its power-on +-2 g / +-250 dps while
+# the profile says 16 g / 2000 dps) reports a flat top the declared range does not catch. The
+# plateau test (:func:`plateau_step`) finds that level in the data.
+PLATEAU_REPEATS = 4
+"""Samples repeating an axis's previous value exactly at the sensor's largest magnitude so far
+(within ``SATURATION_FRACTION``) that make that magnitude a clipping level: a clipped channel
+repeats its full-scale code; a real peak, even quantised, does so once or twice (on BROAD's seven
+trials and 40 simulated recordings, none reached 4 without clipping)."""
+PLATEAU_TOLERANCE = 0.98
+"""Once a plateau is found, a sample with an axis at this fraction of its level or beyond is
+saturated (axes clip a few per cent apart once calibrated for scale and bias)."""
+PLATEAU_FLOOR_ACCELEROMETER = 0.9 * 2.0 * 9.80665
+"""m/s^2: 90 % of the smallest full scale of MEMS accelerometers (+-2 g): a flat top below it
+is a still or slow sensor's quantisation, not a range."""
+PLATEAU_FLOOR_GYROSCOPE = 0.9 * math.radians(125.0)
+"""rad/s: 90 % of the smallest full scale of MEMS gyroscopes (+-125 dps)."""
+
+
+def plateau_step(sample: tuple[float, float, float] | NDArray[np.float64],
+                 previous: tuple[float, float, float] | NDArray[np.float64] | None,
+                 top: float, repeats: int, floor: float) -> tuple[float, int, bool]:
+    """One sample of the plateau test for a sensor clipping below its declared range.
+
+    ``top`` is the largest axis magnitude seen (the sensor's units), ``repeats`` how often an
+    axis has since repeated its ``previous`` value exactly at ``|v| >= SATURATION_FRACTION top``
+    and ``>= floor``. A larger sample raises ``top`` and clears ``repeats`` (it was a peak, not
+    a level). With ``repeats >= PLATEAU_REPEATS`` the sample is saturated when an axis is at
+    ``PLATEAU_TOLERANCE top`` or beyond; it then gets ``saturation_variance(top)``, as if
+    ``top`` were the declared range. Returns ``(top, repeats, saturated)``."""
+    largest = max(abs(sample[0]), abs(sample[1]), abs(sample[2]))
+    if largest > top:
+        top, repeats = largest, 0
+    if previous is not None:
+        for axis in range(3):
+            value = abs(sample[axis])
+            if value >= floor and value >= SATURATION_FRACTION * top \
+                    and sample[axis] == previous[axis]:
+                repeats += 1
+                break
+    return top, repeats, repeats >= PLATEAU_REPEATS and largest >= PLATEAU_TOLERANCE * top
+
+
+def plateau_level(values: NDArray[np.float64], floor: float) -> float | None:
+    """The level (the sensor's units) at which a whole stream of samples ``values`` (n, 3)
+    clips: :func:`plateau_step` run over it, its top when the test ends on a plateau, else
+    None. Offline (``kfusion check``): the filter flags samples from the plateau's fourth
+    repeat on, this names the level for the whole stream."""
+    top, repeats, previous = 0.0, 0, None
+    for sample in np.asarray(values, dtype=float).tolist():
+        top, repeats, _ = plateau_step(sample, previous, top, repeats, floor)
+        previous = sample
+    return top if repeats >= PLATEAU_REPEATS else None
+
 
 def state_size(estimate_lever_arm: bool) -> int:
     """9, or 12 with the lever-arm states (:func:`kfusion.kalman.layout.layout_for`)."""

@@ -124,6 +124,20 @@ def imu_rate_drops(streams: Streams, keep_every: int = 8, fraction: float = 0.5)
     return _imu(streams, ~late | (index % keep_every == 0))
 
 
+def imu_clips(streams: Streams, accelerometer_range: float | None = None,
+              gyroscope_range: float | None = None) -> Streams:
+    """The IMU reports at most ``accelerometer_range`` (m/s^2) and ``gyroscope_range`` (rad/s)
+    per axis (None: as recorded), below the range its profile declares: a chip left at its
+    power-on full scale (the MPU-9250's +-2 g and +-250 dps) while the profile says 8 g and
+    1000 dps. A clipped axis repeats its full-scale value, as the sensor does."""
+    imu = streams.recording.imu
+    accelerometer = imu.accelerometer if accelerometer_range is None else np.clip(
+        imu.accelerometer, -accelerometer_range, accelerometer_range)
+    gyroscope = imu.gyroscope if gyroscope_range is None else np.clip(
+        imu.gyroscope, -gyroscope_range, gyroscope_range)
+    return _imu(streams, accelerometer=accelerometer, gyroscope=gyroscope)
+
+
 def imu_knocks(streams: Streams, every_s: float = 0.7, amplitude: float = 60.0,
                frequency: float = 90.0, duration_s: float = 0.04, seed: int = 0) -> Streams:
     """Knocks on the IMU (taps on its housing, or on the table under the arm) about every
