@@ -153,7 +153,7 @@ from typing import TYPE_CHECKING, Final
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kfusion.conventions import ACCEPTED, GATED, REACQUIRED, USED_OUTCOMES
+from kfusion.conventions import ACCEPTED, GATED, INITIALISED, REACQUIRED, USED_OUTCOMES
 from kfusion.guards import short_repr
 
 if TYPE_CHECKING:
@@ -1691,6 +1691,12 @@ class ConsistencyMonitor:
             self._near_impact = near
             self._scale_table_value = None
         self._gap_start(t, position, outcome)  # before _last_fix takes this frame
+        if kind == INITIALISED and self._first_fix_t != math.inf:
+            # the filter forgot its state (a reset: an overflow, or a prediction beyond
+            # FORGOTTEN_POSITION_STD) and this fix starts it again: its first fixes are a
+            # recording's first (model_tested), with nothing before them to compare with
+            self._first_fix_t, self._appeared, self._tested_fixes = math.inf, False, 0
+            self._bridging_value = None
         if kind in USED_OUTCOMES:
             if self._first_fix_t == math.inf:
                 self._first_fix_t = t

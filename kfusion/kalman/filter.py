@@ -81,7 +81,7 @@ cross-axis error (:func:`~kfusion.kalman.model.scale_error_variance`); the fast 
 error, which the bias cannot follow, and sample-to-sample jumps beyond the noise (impacts) count
 as acceleration noise (:func:`~kfusion.kalman.model.motion_acceleration_variance`,
 :func:`~kfusion.kalman.model.interpolation_variance`). A propagation that overflows (an
-absurd interval) or leaves the position std beyond 1 km (minutes without a fix,
+absurd interval) or leaves the position std beyond 100 km (minutes without a fix,
 :data:`~kfusion.kalman.model.FORGOTTEN_POSITION_STD`) forgets the state (``resets``): the output
 is ``lost`` until the next fix with an orientation.
 """
@@ -156,7 +156,7 @@ COUNTER_NAMES: Final = (
 reacquired and initialised); ``no_orientation`` counts fixes without a quaternion before the
 orientation was known (treated as occluded); ``imu_dropouts`` intervals longer than
 ``imu_dropout_s``; ``imu_late`` samples not after the state's time; ``resets`` propagations that
-overflowed or left the position std beyond 1 km (the state is then forgotten and re-initialised
+overflowed or left the position std beyond 100 km (the state is then forgotten and re-initialised
 by the next fix); ``imu_rejected``
 samples with NaN, inf or a value beyond :data:`kfusion.kalman.model.IMPLAUSIBLE_SAMPLE`;
 ``imu_outages`` intervals propagated without IMU (:mod:`kfusion.streamhealth`);

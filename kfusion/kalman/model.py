@@ -572,16 +572,21 @@ LOW_PASS_TIME_CONSTANT = 0.1
 to average out the ringing of an impact, short against a limb movement)."""
 SCALE_ERROR_COHERENCE_S = 0.5
 """s: time over which a limb's specific force changes coherently (a reach lasts 0.5-1 s)."""
-FORGOTTEN_POSITION_STD = 1000.0
-"""m: a prediction whose position 1-sigma exceeds this on some axis says nothing about where the
-body is (a motion-capture volume is tens of metres across). The state is then forgotten
-(``resets``), as when a propagation overflows: ``lost`` until a fix with an orientation
-initialises it again (:func:`state_usable`). The no-IMU model (``Q_pp = q^2 dt^3 / 3`` with q =
-30 m/s^2/sqrt(Hz)) gets there after 15 s without IMU samples or fixes; the IMU alone after minutes
-without fixes. A fix on such a prior would otherwise be fused into a covariance 1e13 or more
-times its own noise, where rounding is all that is left of the posterior (after a 1e5 s pause the
-two engines parted by 1e-9 m, after 1e7 s by 4e-6 m, and three frames 1e15 s apart were fused
-1 mm off with a 1 mm bound)."""
+FORGOTTEN_POSITION_STD = 1.0e5
+"""m: a prediction whose position 1-sigma exceeds this (100 km) on some axis says nothing about
+where the body is. The state is then forgotten (``resets``), as when a propagation overflows:
+``lost`` until a fix with an orientation initialises it again, as a recording's first
+(:func:`state_usable`). The no-IMU model (``Q_pp = q^2 dt^3 / 3`` with q = 30 m/s^2/sqrt(Hz))
+gets there after about 320 s without IMU samples or fixes; the IMU alone after about 10 minutes
+without fixes. A fix on a prior far beyond that is fused into a covariance 1e20 or more times its
+own noise, where rounding is all that is left of the posterior: after a 1e5 s pause the two
+engines parted by 1e-9 m, after 1e7 s by 4e-6 m, and three frames 1e15 s apart came out 1-3 mm
+off with 1 mm bounds. Up to this std the update keeps the posterior (filterpy's Joseph order,
+:func:`kfusion.kalman.compiled.position_update`: 2e-12 m between the engines after a 500 s pause,
+a prior 4e17 times R), and the prediction a re-acquiring fix replaced stays its rival
+(:meth:`kfusion.monitor.ConsistencyMonitor._reacquisition_rival`): at 1 km (a minute of IMU
+alone) a reset made the first fixes a recording's first, and a body solved 3 mm off on its first
+10 frames at re-entry was then tracked 4.4x beyond its bound, where the rival covered it."""
 
 
 def state_usable(x: NDArray[np.float64], P: NDArray[np.float64],

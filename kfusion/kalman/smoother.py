@@ -92,6 +92,7 @@ from kfusion.monitor import (
     quantile_matching_scale,
     required_scales,
     smoothed_edge_sensitivity,
+    step_offset_variance,
 )
 from kfusion.recording import (
     MarkerFrames,
@@ -193,6 +194,20 @@ def contested_fixes(outcome: NDArray[np.str_]) -> NDArray[np.bool_]:
         elif kind == GATED:
             gated_since_fix = True
     return contested
+
+
+def first_fix_rows(t: NDArray[np.float64], outcome: NDArray[np.str_], window_s: float
+                   ) -> NDArray[np.bool_]:
+    """Rows (m,) bool less than ``window_s`` s after a fix that initialised the state (a
+    recording's first, or the first after a reset), from that fix on: the rows resting on a
+    body's first fixes, which nothing before them checked (:attr:`kfusion.monitor.
+    ConsistencyMonitor.model_tested`)."""
+    starts = np.asarray(t, dtype=float)[np.asarray(outcome) == INITIALISED]
+    if len(starts) == 0:
+        return np.zeros(len(t), dtype=bool)
+    index = np.searchsorted(starts, t, side="right") - 1
+    since = np.where(index >= 0, t - starts[np.maximum(index, 0)], np.inf)
+    return since < window_s
 
 
 def initialised_segments(outcome: NDArray[np.str_], initialised: NDArray[np.bool_]
@@ -671,6 +686,13 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
     if measurement == MARKERS:
         variance = partial_occlusion_floor(recording, variance, filtered_variance)
     report = None if watcher is None else watcher.report()
+    # a body's first fixes may be solved off by as much as the step rule lets through, as the
+    # forward pass shows them (ConsistencyMonitor.fix_only); the smoothed rows on them carry it
+    # too (with a reset's first 10 frames 3 mm off: 4.5-6.2x beyond the bound without it, and
+    # 3.7x at a recording's start)
+    first_variance = np.zeros((m, 1)) if watcher is None else np.where(
+        first_fix_rows(t, recorder.outcome.astype(str), watcher.params.reacquisition_rival_s),
+        step_offset_variance(params.mocap_position_noise ** 2, watcher.params), 0.0)[:, None]
     if report is not None:
         # the smoothed rows at fixes rest on the forward pass's IMU model: where its shadow
         # gaps or innovations found it too confident, they carry that scale (model_scale)
@@ -680,6 +702,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         # on the same fix and model: it is not presented as surer than that
         variance = np.where(np.isfinite(recorder.at_fix_variance),
                             np.maximum(variance, recorder.at_fix_variance), variance)
+        variance = variance + first_variance
     edge_variance, edge_fixes = (0.0, 0) if monitor is None else edge_holdout(
         recording, params, monitor, measurement=measurement, engine=engine)
     if edge_variance > 0 and monitor is not None:
@@ -721,6 +744,7 @@ def run_smoother(recording: Recording, params: KalmanParameters | None = None, *
         widened = np.where(np.isfinite(recorder.at_fix_variance),
                            np.maximum(recorder.at_fix_variance, noise), noise)
         fix_variance = widened + forward_rivals
+        fix_variance = fix_variance + first_variance  # a body's first fixes, as above
         if edge_variance > 0 and monitor is not None:
             # a fix shown alone is the offset fix itself (edge_holdout)
             fix_variance = fix_variance + np.where(edge_rows(t, fixed, monitor, edge_fixes),
