@@ -103,7 +103,7 @@ def plateau_step(sample: tuple[float, float, float] | NDArray[np.float64],
     return top, repeats, repeats >= PLATEAU_REPEATS and largest >= PLATEAU_TOLERANCE * top
 
 
-def plateau_level(values: NDArray[np.float64], floor: float) -> float | None:
+def clipping_level(values: NDArray[np.float64], floor: float) -> float | None:
     """The level (the sensor's units) at which a whole stream of samples ``values`` (n, 3)
     clips: :func:`plateau_step` run over it, its top when the test ends on a plateau, else
     None. Offline (``kfusion check``): the filter flags samples from the plateau's fourth
