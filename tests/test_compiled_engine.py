@@ -946,24 +946,27 @@ def test_one_shared_output_matrix_gives_the_bits_of_one_per_row() -> None:
 
 
 def test_the_compiled_plateau_test_equals_the_model_s() -> None:
-    """compiled.plateau_level against model.plateau_step on quantised random walks that clip
-    (both sensors' floors): the same top, repeats and saturated samples, sample by sample."""
+    """compiled.plateau_level against model.plateau_step on quantised random walks that clip,
+    each axis at its own level and one a bias apart on its two sides (both sensors' floors):
+    the same tops, repeats and levels, sample by sample."""
     from kfusion.kalman import model
 
     rng = np.random.default_rng(4)
     for floor in (model.PLATEAU_FLOOR_ACCELEROMETER, model.PLATEAU_FLOOR_GYROSCOPE):
-        level = 1.3 * floor
+        high = floor * np.array([1.3, 1.25, 1.4])
+        low = -high + np.array([0.0, 0.02 * floor, 0.0])
         walk = np.cumsum(rng.normal(scale=0.15 * floor, size=(3000, 3)), axis=0)
-        samples = np.clip(np.round(walk / (0.01 * floor)) * 0.01 * floor, -level, level)
+        samples = np.clip(np.round(walk / (0.01 * floor)) * 0.01 * floor, low, high)
         scalars = compiled.initial_scalars()
-        top, repeats, previous, saturated = 0.0, 0, None, 0
+        tops, repeats = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+        previous, saturated = None, 0
         for sample in samples:
-            top, repeats, flat = model.plateau_step(sample, previous, top, repeats, floor)
+            tops, repeats, level = model.plateau_step(sample, previous, tops, repeats, floor)
             found = compiled.plateau_level(sample, scalars, compiled.ACCELEROMETER,
                                            compiled.ACCELEROMETER_PLATEAU, floor)
-            assert found == (top if flat else 0.0)
-            assert (scalars[compiled.ACCELEROMETER_PLATEAU],
-                    scalars[compiled.ACCELEROMETER_PLATEAU + 1]) == (top, repeats)
+            assert found == level
+            state = scalars[compiled.ACCELEROMETER_PLATEAU:compiled.ACCELEROMETER_PLATEAU + 6]
+            assert tuple(state) == tops + repeats
             scalars[compiled.ACCELEROMETER:compiled.ACCELEROMETER + 3] = sample
-            previous, saturated = sample, saturated + flat
+            previous, saturated = sample, saturated + (level > 0)
         assert saturated > 100  # the walk does clip

@@ -572,35 +572,44 @@ def test_a_prediction_looser_than_100_km_is_forgotten_before_the_next_fix(engine
 
 
 def test_the_plateau_test_by_hand():
-    """model.plateau_step on one axis, floor 1.96 rad/s: a level becomes a clip on its 4th
-    exact repeat; a sample above it clears the evidence (it was a peak)."""
+    """model.plateau_step on axis x, floor 1.96 rad/s: a level becomes a clip on its 4th exact
+    repeat; a value above it clears the evidence (it was a peak). Axis y keeps its own top
+    (0.5, below the floor: never a level)."""
     from kfusion.kalman.model import plateau_step
 
     floor = 1.96
-    top, repeats, previous = 0.0, 0, None
-    expected = [  # value on x: (top, repeats, saturated) after it
-        (1.0, (1.0, 0, False)),
-        (3.0, (3.0, 0, False)),
-        (3.0, (3.0, 1, False)),  # an exact repeat at the top
-        (3.0, (3.0, 2, False)),
-        (3.0, (3.0, 3, False)),
-        (3.0, (3.0, 4, True)),  # the 4th: a clipping level
-        (2.95, (3.0, 4, True)),  # within 2 % of it (axes clip a few per cent apart)
-        (2.9, (3.0, 4, False)),
-        (2.9, (3.0, 4, False)),  # a repeat below the top adds nothing
-        (3.1, (3.1, 0, False)),  # above the level: it was a peak, not a clip
+    tops, repeats, previous = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), None
+    expected = [  # value on x: (top x, repeats x, level) after it
+        (1.0, (1.0, 0, 0.0)),
+        (3.0, (3.0, 0, 0.0)),
+        (3.0, (3.0, 1, 0.0)),  # an exact repeat at the top
+        (3.0, (3.0, 2, 0.0)),
+        (3.0, (3.0, 3, 0.0)),
+        (3.0, (3.0, 4, 3.0)),  # the 4th: a clipping level
+        (2.95, (3.0, 4, 3.0)),  # within 2 % of it (the other side, a bias apart)
+        (2.9, (3.0, 4, 0.0)),
+        (2.9, (3.0, 4, 0.0)),  # a repeat below the top adds nothing
+        (3.1, (3.1, 0, 0.0)),  # above the level: it was a peak, not a clip
     ]
     for value, after in expected:
         sample = (value, 0.5, -0.2)
-        top, repeats, saturated = plateau_step(sample, previous, top, repeats, floor)
-        assert (top, repeats, saturated) == after, value
+        tops, repeats, level = plateau_step(sample, previous, tops, repeats, floor)
+        assert (tops[0], repeats[0], level) == after, value
+        assert (tops[1], repeats[1]) == (0.5, 0.0)
         previous = sample
+    # one axis's plateau under another axis's larger values (a bias apart): its own level
+    tops, repeats, previous = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), None
+    for k in range(8):
+        sample = (2.5, 4.0 + 0.1 * k, 0.0)  # x flat at 2.5, y larger and moving
+        tops, repeats, level = plateau_step(sample, previous, tops, repeats, floor)
+        previous = sample
+    assert level == 2.5 and repeats[0] == 7
     # a still sensor's quantised top repeats below the floor: never a range
-    top, repeats, previous = 0.0, 0, None
+    tops, repeats, previous = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), None
     for _ in range(50):
-        top, repeats, saturated = plateau_step((1.5, 0.0, 0.0), previous, top, repeats, floor)
+        tops, repeats, level = plateau_step((1.5, 0.0, 0.0), previous, tops, repeats, floor)
         previous = (1.5, 0.0, 0.0)
-        assert not saturated and repeats == 0
+        assert level == 0.0 and repeats == (0.0, 0.0, 0.0)
 
 
 @pytest.mark.parametrize("engine", ["filterpy", "compiled"])

@@ -9,7 +9,7 @@ mistake found (later tests assume the earlier ones passed):
 1. time units: one stream's time span about 1000 times the other's (ms instead of s);
 2. time overlap of the IMU and the mocap;
    then a note for each IMU sensor that clips below its profile's range (a flat top,
-   :func:`kfusion.kalman.model.clipping_level`); the frames within :data:`CLIPPED_MARGIN_S` of a
+   :func:`kfusion.kalman.model.clipping_levels`); the frames within :data:`CLIPPED_MARGIN_S` of a
    clipped sample are left out of the tests below, whose rates and accelerations the clipped
    samples would bend (a gyroscope flat at 250 dps on a fast trial read as a 25 ms clock
    offset);
@@ -151,7 +151,8 @@ class Diagnosis:
 def clipped_samples(imu: ImuSamples) -> tuple[np.ndarray, list[str]]:
     """IMU samples (n,) bool on a plateau of either sensor (an axis at
     :data:`~kfusion.kalman.model.PLATEAU_TOLERANCE` of the level :func:`kfusion.kalman.model.
-    clipping_level` finds, or beyond), and one note per clipping sensor naming its level."""
+    clipping_levels` finds for it, or beyond), and one note per clipping sensor naming its
+    largest level."""
     clipped = np.zeros(len(imu.t), dtype=bool)
     notes = []
     for name, values, floor, unit, other, scale in (
@@ -159,10 +160,11 @@ def clipped_samples(imu: ImuSamples) -> tuple[np.ndarray, list[str]]:
              "g", 1.0 / 9.80665),
             ("gyroscope", imu.gyroscope, model.PLATEAU_FLOOR_GYROSCOPE, "rad/s", "dps",
              180.0 / np.pi)):
-        level = model.clipping_level(values, floor)
-        if level is None:
+        levels = model.clipping_levels(values, floor)
+        if not levels.any():
             continue
-        flat = np.max(np.abs(values), axis=1) >= model.PLATEAU_TOLERANCE * level
+        level = float(levels.max())
+        flat = ((np.abs(values) >= model.PLATEAU_TOLERANCE * levels) & (levels > 0)).any(axis=1)
         clipped |= flat
         notes.append(f"{name} clips at {level:.3g} {unit} ({level * scale:.3g} {other}) on "
                      f"{int(flat.sum())} samples ({flat.mean():.1%}): a flat top below the "

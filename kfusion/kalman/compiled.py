@@ -68,8 +68,8 @@ LOW_PASS = 11  # low-passed specific force (3); NaN in LOW_PASS: none yet
 LAST_FIX, LAST_NIS, LAST_ORIENTATION_FIX, IMU_INTERVAL = 14, 15, 16, 17
 INITIALISED_FLAG, LAST_FRAME_FUSED, OUTAGE_SINCE_FIX = 18, 19, 20
 LAST_IMPACT = 21  # time of the last impact, s (-inf: none; KalmanFusion.last_impact_t)
-ACCELEROMETER_PLATEAU, GYROSCOPE_PLATEAU = 22, 24  # (top, repeats) each: model.plateau_step
-SCALAR_COUNT: Final = 26
+ACCELEROMETER_PLATEAU, GYROSCOPE_PLATEAU = 22, 28  # (tops (3), repeats (3)): model.plateau_step
+SCALAR_COUNT: Final = 34
 ORIENTATION_SIZE: Final = 19
 INNOVATION_MEAN, INNOVATION_SQUARE = 15, 18  # OrientationState.innovation_mean (3), _square
 
@@ -146,8 +146,8 @@ def initial_scalars() -> NDArray[np.float64]:
     scalars[ACCELEROMETER_EXTRA] = scalars[GYROSCOPE_EXTRA] = 0.0
     scalars[INITIALISED_FLAG] = scalars[LAST_FRAME_FUSED] = scalars[OUTAGE_SINCE_FIX] = 0.0
     scalars[LAST_IMPACT] = -math.inf
-    scalars[ACCELEROMETER_PLATEAU:ACCELEROMETER_PLATEAU + 2] = 0.0
-    scalars[GYROSCOPE_PLATEAU:GYROSCOPE_PLATEAU + 2] = 0.0
+    scalars[ACCELEROMETER_PLATEAU:ACCELEROMETER_PLATEAU + 6] = 0.0
+    scalars[GYROSCOPE_PLATEAU:GYROSCOPE_PLATEAU + 6] = 0.0
     return scalars
 
 
@@ -1011,26 +1011,25 @@ def limit_into(sample, sensor_range, out):
 @njit(cache=True, inline="always")
 def plateau_level(sample, scalars, held, plateau, floor):
     """:func:`kfusion.kalman.model.plateau_step` of ``sample`` (3,) against the held sample
-    ``scalars[held:held + 3]``, on the test's state ``scalars[plateau:plateau + 2]`` (top,
-    repeats), in place. Returns the plateau's level when the sample is saturated on it, else
-    0."""
-    top = scalars[plateau]
-    repeats = scalars[plateau + 1]
-    largest = max(abs(sample[0]), abs(sample[1]), abs(sample[2]))
-    if largest > top:
-        top = largest
-        repeats = 0.0
+    ``scalars[held:held + 3]``, on the test's state ``scalars[plateau:plateau + 6]`` (tops (3),
+    repeats (3)), in place. Returns the largest level of an axis saturating the sample on its
+    plateau, else 0."""
+    level = 0.0
     for axis in range(3):
         value = abs(sample[axis])
+        top = scalars[plateau + axis]
+        repeats = scalars[plateau + 3 + axis]
+        if value > top:
+            top = value
+            repeats = 0.0
         if value >= floor and value >= _SATURATION_FRACTION * top \
                 and sample[axis] == scalars[held + axis]:
             repeats += 1.0
-            break
-    scalars[plateau] = top
-    scalars[plateau + 1] = repeats
-    if repeats >= _PLATEAU_REPEATS and largest >= _PLATEAU_TOLERANCE * top:
-        return top
-    return 0.0
+        if repeats >= _PLATEAU_REPEATS and value >= _PLATEAU_TOLERANCE * top:
+            level = max(level, top)
+        scalars[plateau + axis] = top
+        scalars[plateau + 3 + axis] = repeats
+    return level
 
 
 @njit(cache=True, inline="always")

@@ -275,8 +275,8 @@ class KalmanSnapshot:
     frames_on_gyroscope: int = 0
     layout: LayoutResiduals | None = None
     last_impact_t: float = -math.inf
-    accelerometer_plateau: tuple[float, int] = (0.0, 0)
-    gyroscope_plateau: tuple[float, int] = (0.0, 0)
+    accelerometer_plateau: tuple[model.Triple, model.Triple] = ((0.0,) * 3, (0.0,) * 3)
+    gyroscope_plateau: tuple[model.Triple, model.Triple] = ((0.0,) * 3, (0.0,) * 3)
 
 
 def _vector(value: ArrayLike, size: int, name: str) -> NDArray[np.float64]:
@@ -407,9 +407,10 @@ class KalmanFusion:
         self._gyroscope: Vector3 | None = None
         self._accelerometer_extra_variance = 0.0
         self._gyroscope_extra_variance = 0.0
-        # (top, repeats) of each sensor's plateau test (model.plateau_step)
-        self._accelerometer_plateau: tuple[float, int] = (0.0, 0)
-        self._gyroscope_plateau: tuple[float, int] = (0.0, 0)
+        # (tops, repeats) of each sensor's plateau test (model.plateau_step)
+        self._accelerometer_plateau: tuple[model.Triple, model.Triple] = ((0.0,) * 3,
+                                                                          (0.0,) * 3)
+        self._gyroscope_plateau: tuple[model.Triple, model.Triple] = ((0.0,) * 3, (0.0,) * 3)
         self._accelerometer_low_pass: Vector3 | None = None
         self._initialised = False
         self._last_fix: float | None = None
@@ -754,17 +755,18 @@ class KalmanFusion:
                abs(omega[2])) > model.IMPLAUSIBLE_SAMPLE:
             self._counters["imu_rejected"] += 1
             return REJECTED
-        top, repeats, flat = model.plateau_step(f, self._accelerometer,
-                                                *self._accelerometer_plateau,
-                                                model.PLATEAU_FLOOR_ACCELEROMETER)
-        self._accelerometer_plateau = (top, repeats)
+        tops, repeats, level = model.plateau_step(f, self._accelerometer,
+                                                  *self._accelerometer_plateau,
+                                                  model.PLATEAU_FLOOR_ACCELEROMETER)
+        self._accelerometer_plateau = (tops, repeats)
         f, accelerometer_extra = self._limit(f, params.accelerometer_range,
-                                             "accelerometer_saturated", top if flat else None)
-        top, repeats, flat = model.plateau_step(omega, self._gyroscope, *self._gyroscope_plateau,
-                                                model.PLATEAU_FLOOR_GYROSCOPE)
-        self._gyroscope_plateau = (top, repeats)
+                                             "accelerometer_saturated", level or None)
+        tops, repeats, level = model.plateau_step(omega, self._gyroscope,
+                                                  *self._gyroscope_plateau,
+                                                  model.PLATEAU_FLOOR_GYROSCOPE)
+        self._gyroscope_plateau = (tops, repeats)
         omega, gyroscope_extra = self._limit(omega, params.gyroscope_range, "gyroscope_saturated",
-                                             top if flat else None)
+                                             level or None)
         t = imu_event_time(stamp, params.imu_latency_s)
         if self._imu_time is not None and t - self._imu_time > params.imu_dropout_s:
             self._counters["imu_dropouts"] += 1

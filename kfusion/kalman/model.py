@@ -65,54 +65,63 @@ IMPLAUSIBLE_SAMPLE = 1e6
 # the profile says 16 g / 2000 dps) reports a flat top the declared range does not catch. The
 # plateau test (:func:`plateau_step`) finds that level in the data.
 PLATEAU_REPEATS = 4
-"""Samples repeating an axis's previous value exactly at the sensor's largest magnitude so far
+"""Samples repeating an axis's previous value exactly at that axis's largest magnitude so far
 (within ``SATURATION_FRACTION``) that make that magnitude a clipping level: a clipped channel
 repeats its full-scale code; a real peak, even quantised, does so once or twice (on BROAD's seven
 trials and 40 simulated recordings, none reached 4 without clipping)."""
 PLATEAU_TOLERANCE = 0.98
-"""Once a plateau is found, a sample with an axis at this fraction of its level or beyond is
-saturated (axes clip a few per cent apart once calibrated for scale and bias)."""
+"""Once an axis's plateau is found, a sample with that axis at this fraction of its level or
+beyond is saturated (its two sides clip a little apart once a bias is subtracted)."""
 PLATEAU_FLOOR_ACCELEROMETER = 0.9 * 2.0 * 9.80665
 """m/s^2: 90 % of the smallest full scale of MEMS accelerometers (+-2 g): a flat top below it
 is a still or slow sensor's quantisation, not a range."""
 PLATEAU_FLOOR_GYROSCOPE = 0.9 * math.radians(125.0)
 """rad/s: 90 % of the smallest full scale of MEMS gyroscopes (+-125 dps)."""
 
-
-def plateau_step(sample: tuple[float, float, float] | NDArray[np.float64],
-                 previous: tuple[float, float, float] | NDArray[np.float64] | None,
-                 top: float, repeats: int, floor: float) -> tuple[float, int, bool]:
-    """One sample of the plateau test for a sensor clipping below its declared range.
-
-    ``top`` is the largest axis magnitude seen (the sensor's units), ``repeats`` how often an
-    axis has since repeated its ``previous`` value exactly at ``|v| >= SATURATION_FRACTION top``
-    and ``>= floor``. A larger sample raises ``top`` and clears ``repeats`` (it was a peak, not
-    a level). With ``repeats >= PLATEAU_REPEATS`` the sample is saturated when an axis is at
-    ``PLATEAU_TOLERANCE top`` or beyond; it then gets ``saturation_variance(top)``, as if
-    ``top`` were the declared range. Returns ``(top, repeats, saturated)``."""
-    largest = max(abs(sample[0]), abs(sample[1]), abs(sample[2]))
-    if largest > top:
-        top, repeats = largest, 0
-    if previous is not None:
-        for axis in range(3):
-            value = abs(sample[axis])
-            if value >= floor and value >= SATURATION_FRACTION * top \
-                    and sample[axis] == previous[axis]:
-                repeats += 1
-                break
-    return top, repeats, repeats >= PLATEAU_REPEATS and largest >= PLATEAU_TOLERANCE * top
+Triple = tuple[float, float, float]
 
 
-def clipping_level(values: NDArray[np.float64], floor: float) -> float | None:
-    """The level (the sensor's units) at which a whole stream of samples ``values`` (n, 3)
-    clips: :func:`plateau_step` run over it, its top when the test ends on a plateau, else
-    None. Offline (``kfusion check``): the filter flags samples from the plateau's fourth
-    repeat on, this names the level for the whole stream."""
-    top, repeats, previous = 0.0, 0, None
+def plateau_step(sample: Triple | NDArray[np.float64],
+                 previous: Triple | NDArray[np.float64] | None,
+                 tops: Triple, repeats: Triple, floor: float) -> tuple[Triple, Triple, float]:
+    """One sample of the plateau test for a sensor clipping below its declared range, axis by
+    axis (each axis keeps its own level: calibration moves the axes' full scales apart).
+
+    ``tops`` are the largest magnitudes each axis has shown (the sensor's units), ``repeats``
+    how often the axis has since repeated its ``previous`` value exactly at ``|v| >=
+    SATURATION_FRACTION top`` and ``>= floor``. A larger value raises the axis's top and clears
+    its repeats (it was a peak, not a level). With ``repeats >= PLATEAU_REPEATS`` an axis at
+    ``PLATEAU_TOLERANCE top`` or beyond saturates the sample, which then gets
+    ``saturation_variance(level)`` as if that level were the declared range. Returns ``(tops,
+    repeats, level)``, ``level`` the largest top of an axis saturating the sample, else 0."""
+    new_tops, new_repeats, level = list(tops), list(repeats), 0.0
+    for axis in range(3):
+        value = abs(sample[axis])
+        if value > new_tops[axis]:
+            new_tops[axis], new_repeats[axis] = value, 0.0
+        if previous is not None and value >= floor \
+                and value >= SATURATION_FRACTION * new_tops[axis] \
+                and sample[axis] == previous[axis]:
+            new_repeats[axis] += 1.0
+        if new_repeats[axis] >= PLATEAU_REPEATS and value >= PLATEAU_TOLERANCE * new_tops[axis]:
+            level = max(level, new_tops[axis])
+    return ((new_tops[0], new_tops[1], new_tops[2]),
+            (new_repeats[0], new_repeats[1], new_repeats[2]), level)
+
+
+def clipping_levels(values: NDArray[np.float64], floor: float) -> NDArray[np.float64]:
+    """The level (the sensor's units) at which each axis of a whole stream of samples ``values``
+    (n, 3) clips, (3,), 0 where it does not: :func:`plateau_step` run over the stream, each
+    axis's top when its test ends on a plateau. Offline (``kfusion check``): the filter
+    saturates samples from a plateau's fourth repeat on, this names the levels for the whole
+    stream."""
+    tops: Triple = (0.0, 0.0, 0.0)
+    repeats: Triple = (0.0, 0.0, 0.0)
+    previous = None
     for sample in np.asarray(values, dtype=float).tolist():
-        top, repeats, _ = plateau_step(sample, previous, top, repeats, floor)
+        tops, repeats, _ = plateau_step(sample, previous, tops, repeats, floor)
         previous = sample
-    return top if repeats >= PLATEAU_REPEATS else None
+    return np.where(np.asarray(repeats) >= PLATEAU_REPEATS, np.asarray(tops), 0.0)
 
 
 def state_size(estimate_lever_arm: bool) -> int:
