@@ -70,7 +70,12 @@ from kfusion.calibration.specific_force import (
     solve_specific_force,
     specific_force_system,
 )
-from kfusion.conventions import matrix_from_wxyz, median_interval, rotation_from_wxyz
+from kfusion.conventions import (
+    STANDARD_GRAVITY,
+    matrix_from_wxyz,
+    median_interval,
+    rotation_from_wxyz,
+)
 from kfusion.kalman import model
 from kfusion.recording import (
     ImuSamples,
@@ -157,7 +162,7 @@ def clipped_samples(imu: ImuSamples) -> tuple[np.ndarray, list[str]]:
     notes = []
     for name, values, floor, unit, other, scale in (
             ("accelerometer", imu.accelerometer, model.PLATEAU_FLOOR_ACCELEROMETER, "m/s^2",
-             "g", 1.0 / 9.80665),
+             "g", 1.0 / STANDARD_GRAVITY),
             ("gyroscope", imu.gyroscope, model.PLATEAU_FLOOR_GYROSCOPE, "rad/s", "dps",
              180.0 / np.pi)):
         levels = model.clipping_levels(values, floor)

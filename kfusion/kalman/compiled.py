@@ -174,6 +174,7 @@ _SCALE_COHERENCE = model.SCALE_ERROR_COHERENCE_S
 _motion_acceleration_variance = njit(cache=True)(model.motion_acceleration_variance)
 _stamp_jitter_variance = njit(cache=True)(model.stamp_jitter_variance)
 _is_impact = njit(cache=True)(model.is_impact)
+_saturation_variance = njit(cache=True)(model.saturation_variance)
 _interpolation_variance = njit(cache=True)(model.interpolation_variance)
 _persistent_innovations = njit(cache=True)(persistent_innovations)
 _SATURATION_FRACTION = model.SATURATION_FRACTION
@@ -1005,7 +1006,7 @@ def limit_into(sample, sensor_range, out):
         return 0.0
     for i in range(3):
         out[i] = min(max(sample[i], -sensor_range), sensor_range)
-    return 0.25 * sensor_range * sensor_range
+    return _saturation_variance(sensor_range)
 
 
 @njit(cache=True, inline="always")
@@ -1050,14 +1051,14 @@ def predict_step(stamp, f_raw, omega_raw, x, P, orientation, scalars, config, co
     level = plateau_level(f_raw, scalars, ACCELEROMETER, ACCELEROMETER_PLATEAU,
                           _PLATEAU_FLOOR_ACCELEROMETER)
     if acc_extra == 0.0 and level > 0.0:  # clipping below the range: a plateau
-        acc_extra = 0.25 * level * level
+        acc_extra = _saturation_variance(level)
     if acc_extra != 0.0:
         counters[5] += 1
     gyro_extra = limit_into(omega_raw, config[C_GYRO_RANGE], omega)
     level = plateau_level(omega_raw, scalars, GYROSCOPE, GYROSCOPE_PLATEAU,
                           _PLATEAU_FLOOR_GYROSCOPE)
     if gyro_extra == 0.0 and level > 0.0:
-        gyro_extra = 0.25 * level * level
+        gyro_extra = _saturation_variance(level)
     if gyro_extra != 0.0:
         counters[6] += 1
     t = stamp - config[C_LATENCY]

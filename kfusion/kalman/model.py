@@ -45,6 +45,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2
 
+from kfusion.conventions import STANDARD_GRAVITY
 from kfusion.kalman.layout import BASE_LAYOUT, LEVER_LAYOUT, layout_for
 
 BASE_SIZE = BASE_LAYOUT.size
@@ -72,7 +73,7 @@ trials and 40 simulated recordings, none reached 4 without clipping)."""
 PLATEAU_TOLERANCE = 0.98
 """Once an axis's plateau is found, a sample with that axis at this fraction of its level or
 beyond is saturated (its two sides clip a little apart once a bias is subtracted)."""
-PLATEAU_FLOOR_ACCELEROMETER = 0.9 * 2.0 * 9.80665
+PLATEAU_FLOOR_ACCELEROMETER = 0.9 * 2.0 * STANDARD_GRAVITY
 """m/s^2: 90 % of the smallest full scale of MEMS accelerometers (+-2 g): a flat top below it
 is a still or slow sensor's quantisation, not a range."""
 PLATEAU_FLOOR_GYROSCOPE = 0.9 * math.radians(125.0)
@@ -598,8 +599,7 @@ alone) a reset made the first fixes a recording's first, and a body solved 3 mm 
 10 frames at re-entry was then tracked 4.4x beyond its bound, where the rival covered it."""
 
 
-def state_usable(x: NDArray[np.float64], P: NDArray[np.float64],
-                 position: slice = slice(0, 3)) -> bool:
+def state_usable(x: NDArray[np.float64], P: NDArray[np.float64], position: slice) -> bool:
     """True when the state x (n,) and its covariance P (n, n) are finite and no position
     variance (the ``position`` block's diagonal, m^2) exceeds ``FORGOTTEN_POSITION_STD^2``."""
     if not (np.isfinite(x).all() and np.isfinite(P).all()):
